@@ -1,0 +1,5 @@
+//! The gonio host: instrument description, BRDF mathematics, and (in later issues) planning,
+//! streaming, reconstruction, rendering and reports. The `gonio` binary is a thin clap layer on top.
+
+pub mod brdf;
+pub mod instrument;
