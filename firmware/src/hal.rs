@@ -1,8 +1,10 @@
 //! What the board does, and nothing else: step/dir outputs, limit inputs, the detector, a clock.
 //!
 //! Deliberately small and synchronous (embedded-hal style): the step generator decides *when* to
-//! step from [`Hal::now_us`], the HAL only toggles pins. A mock HAL records every call with its
-//! timestamp, so host tests can check step rates, accelerations and the arm-separation invariant.
+//! step from [`Hal::now_us`], the HAL only toggles pins. The controller tells its caller when it next
+//! needs to run ([`crate::Device::next_deadline_us`]), so the binary arms a timer for that instant and
+//! the host tests jump a mock clock straight to it. A mock HAL records every call with its timestamp,
+//! so host tests can check step rates, accelerations and the arm-separation invariant.
 
 use gonio_shared::msg::caps::MAX_CHANNELS;
 use gonio_shared::Axis;
@@ -22,10 +24,11 @@ pub trait Hal {
     /// Emit one step pulse on `axis`.
     fn step(&mut self, axis: Axis);
 
-    /// Is the limit / home switch of `axis` closed?
+    /// Is the limit / home switch of `axis` closed? For a continuous axis this is its index sensor,
+    /// which only homing looks at.
     fn limit_closed(&self, axis: Axis) -> bool;
 
-    /// Start an exposure of `exposure_us` microseconds.
+    /// Start an exposure of `exposure_us` microseconds (restarts one already running).
     fn start_exposure(&mut self, exposure_us: u32);
 
     /// The readout of the last exposure once it is complete, `None` while it is still running.

@@ -102,6 +102,8 @@ pub enum ConfigError {
     TiltRange,
     #[error("blocking angle must lie in [0, 180) degrees")]
     BlockingAngle,
+    #[error("the arms' home positions must keep the light counter-clockwise of the detector by [blocking, 360 - blocking] degrees")]
+    ArmHomes,
 }
 
 impl<R: Real> AxisConfig<R> {
@@ -173,6 +175,15 @@ impl<R: Real> InstrumentConfig<R> {
         if !(self.blocking_angle >= R::ZERO && self.blocking_angle < R::PI) {
             return Err(ConfigError::BlockingAngle);
         }
+        // Homing parks each arm at its switch; both parked arms must form a legal pose.
+        let home = |c: &AxisConfig<R>| match c.home {
+            HomeSide::Min => c.min,
+            HomeSide::Max => c.max,
+        };
+        let sep = home(self.axis(Axis::Light)) - home(self.axis(Axis::Detector));
+        if !(sep >= self.blocking_angle && sep <= R::TAU - self.blocking_angle) {
+            return Err(ConfigError::ArmHomes);
+        }
         Ok(())
     }
 
@@ -214,8 +225,8 @@ impl<R: Real> InstrumentConfig<R> {
         };
         InstrumentConfig {
             axes: [
-                arm(-190.0, 190.0, HomeSide::Max),
-                arm(-190.0, 190.0, HomeSide::Min),
+                arm(-175.0, 175.0, HomeSide::Max),
+                arm(-175.0, 175.0, HomeSide::Min),
                 AxisConfig {
                     steps_per_rev: 200,
                     microsteps: 16,
@@ -281,6 +292,12 @@ mod tests {
         let mut c = good;
         c.blocking_angle = -0.1;
         assert_eq!(c.validate(), Err(ConfigError::BlockingAngle));
+        let mut c = good;
+        c.axes[0].max = 3.2; // light homes at +183 deg, detector at -175: 358 > 355 deg apart
+        assert_eq!(c.validate(), Err(ConfigError::ArmHomes));
+        let mut c = good;
+        c.axes[0].home = HomeSide::Min; // light parked at -175, detector at -175: blocked
+        assert_eq!(c.validate(), Err(ConfigError::ArmHomes));
         let mut c = good;
         c.axes[0].gear_ratio = 1e9;
         assert_eq!(c.validate(), Err(ConfigError::TooManySteps(Axis::Light)));

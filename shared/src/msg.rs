@@ -179,6 +179,9 @@ pub enum Fault {
     NotHomed,
     /// The detector did not answer within its exposure plus margin.
     DetectorTimeout,
+    /// Homing travelled the axis's whole range without its switch closing (or could not back off a
+    /// switch that was closed at the start); cleared by homing again once the switch is fixed.
+    HomeNotFound(Axis),
 }
 
 /// One reading at one plan direction.
@@ -365,6 +368,7 @@ pub(crate) mod tests {
                 Just(Fault::BadFrame),
                 Just(Fault::NotHomed),
                 Just(Fault::DetectorTimeout),
+                axis().prop_map(Fault::HomeNotFound),
             ]
         }
         fn state() -> impl Strategy<Value = ControllerState> {

@@ -1,0 +1,690 @@
+//! The controller state machine: Idle -> Homing -> Ready -> Running <-> Paused -> Done, and Fault
+//! from anywhere.
+//!
+//! | state | accepts | leaves by |
+//! |---|---|---|
+//! | Idle (not homed) | Configure, Plan, PlanEnd, Home, Abort | Home |
+//! | Homing | Plan, PlanEnd, Abort (stops at once -> Idle) | every switch found -> Ready |
+//! | Ready | Configure, Plan, PlanEnd, Home, Start, Abort | Start -> Running |
+//! | Running | Plan, PlanEnd, Pause, Abort | plan ended and measured -> Done; measurement buffer full -> Paused |
+//! | Paused | Plan, PlanEnd, Pause, Resume, Abort | Resume -> Running (automatic after a buffer-full pause once acks free room) |
+//! | Done | Configure, Home, Abort (-> Ready) | |
+//! | Fault | Home; Abort unless the fault needs re-homing | Home -> Homing; Abort -> Ready/Idle |
+//!
+//! `Hello`, `GetStatus`, `AckMeasurements` and `ResendMeasurements` are accepted in every state.
+//! Everything else is answered with `Refused { command, reason }`, never ignored. Before a
+//! compatible `Hello` only `Hello` and `GetStatus` are served.
+//!
+//! Faults: a limit switch during a move halts every axis at once and needs re-homing (the position
+//! is no longer trusted); so does a homing failure. Other faults (an unreachable plan direction, a
+//! detector timeout, a full buffer) let a move in progress finish its planned deceleration, start
+//! nothing new, and are cleared by `Abort` or `Home`. Commands that start motion are refused while
+//! such a move winds down.
+//!
+//! Per plan direction: synchronised move -> settle (`settle_ms`) -> exposure -> readout ->
+//! `Measurement`. A new direction starts only when the measurement buffer has room for its reading.
+
+use crate::hal::Hal;
+use crate::homing::{self, Homing, Stage};
+use crate::link::Outbox;
+use crate::measurements::MeasurementBuffer;
+use crate::plan::{Intake, PlanQueue};
+use crate::separation::SeparationGuard;
+use crate::stepper::{StepError, Stepper};
+use gonio_shared::instrument::{InstrumentConfig, AXES};
+use gonio_shared::kinematics::{Kinematics, Steps, Unreachable};
+use gonio_shared::msg::caps::CHUNK_DIRECTIONS;
+use gonio_shared::msg::{
+    check_handshake, Command, ControllerState, DeviceMsg, Fault, Hello, HostMsg, Measurement, RefuseReason, Status,
+};
+use heapless::{Deque, Vec};
+
+/// Time the detector gets beyond its exposure before `Fault::DetectorTimeout`.
+pub const DETECTOR_MARGIN_US: u64 = 100_000;
+/// Once an exposure should be over, look for its readout this often.
+const READOUT_POLL_US: u64 = 100;
+/// State transitions taken in one `poll` when nothing needs waiting for (e.g. homing: park done ->
+/// next axis's seek; scan: readout -> next move). Bounded so a poll's cost is bounded.
+const TRANSITIONS_PER_POLL: usize = 4;
+
+/// Where the current plan direction stands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    /// No direction in progress.
+    Idle,
+    Moving {
+        index: u32,
+    },
+    Settling {
+        index: u32,
+        until_us: u64,
+    },
+    Exposing {
+        index: u32,
+        done_us: u64,
+        deadline_us: u64,
+    },
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum PauseCause {
+    NotPaused,
+    Host,
+    /// Resumes by itself once acknowledgements free a slot.
+    MeasurementsFull,
+}
+
+/// `Option`-like fields are `heapless::Vec<_, 1>` where the `Option` would use a niche: a `Vec` is
+/// empty when all-zero, so `Controller::new()` is all zero bytes and a `static` Device lands in
+/// `.bss` instead of costing its ~20 KiB twice (flash image + RAM) in `.data`.
+pub struct Controller {
+    state: ControllerState,
+    handshake: bool,
+    kin: Vec<Kinematics<f32>, 1>,
+    guard: Option<SeparationGuard>,
+    homed: bool,
+    homing: Homing,
+    stepper: Stepper,
+    plan: PlanQueue,
+    plan_done: u32,
+    measurements: MeasurementBuffer,
+    phase: Phase,
+    pause: PauseCause,
+    last_fault: Vec<Fault, 1>,
+    /// Faults not yet sent to the host, oldest first, sent as soon as the outbox has room. At most
+    /// two can pile up (a fault that lets a move wind down, then a switch during that move).
+    faults_unreported: Deque<Fault, 4>,
+    /// A state change the host was not told about (homing done, buffer-full pause, done).
+    status_unreported: bool,
+    /// The `free` of the last `Credit` sent; `None` forces one.
+    credit_reported: Option<u16>,
+    last_now_us: u64,
+    /// Poll again at once: the last poll ran out of its transition budget with work left, or a
+    /// command arrived since.
+    more_work: bool,
+}
+
+impl Default for Controller {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Controller {
+    pub const fn new() -> Self {
+        Self {
+            state: ControllerState::Idle,
+            handshake: false,
+            kin: Vec::new(),
+            guard: None,
+            homed: false,
+            homing: Homing::new(),
+            stepper: Stepper::new(),
+            plan: PlanQueue::new(),
+            plan_done: 0,
+            measurements: MeasurementBuffer::new(),
+            phase: Phase::Idle,
+            pause: PauseCause::NotPaused,
+            last_fault: Vec::new(),
+            faults_unreported: Deque::new(),
+            status_unreported: false,
+            credit_reported: None,
+            last_now_us: 0,
+            more_work: false,
+        }
+    }
+
+    pub fn state(&self) -> ControllerState {
+        self.state
+    }
+
+    pub fn homed(&self) -> bool {
+        self.homed
+    }
+
+    pub fn position(&self) -> Steps {
+        self.stepper.position()
+    }
+
+    pub fn is_moving(&self) -> bool {
+        self.stepper.is_moving()
+    }
+
+    pub fn last_fault(&self) -> Option<Fault> {
+        self.last_fault.first().copied()
+    }
+
+    pub fn status(&self, bad_frames: u32) -> Status {
+        Status {
+            state: self.state,
+            homed: self.homed,
+            plan_next: self.plan.next_index(),
+            plan_done: self.plan_done,
+            unacked: self.measurements.unacked(),
+            bad_frames,
+            steps: self.stepper.position(),
+            last_fault: self.last_fault(),
+        }
+    }
+
+    /// The next instant `poll` has work, `None` when only the host can make progress.
+    pub fn next_deadline_us(&self) -> Option<u64> {
+        if self.more_work {
+            return Some(self.last_now_us);
+        }
+        if let Some(t) = self.stepper.next_due_us() {
+            return Some(t);
+        }
+        match self.phase {
+            Phase::Settling { until_us, .. } => Some(until_us),
+            Phase::Exposing {
+                done_us, deadline_us, ..
+            } => {
+                if self.last_now_us < done_us {
+                    Some(done_us)
+                } else {
+                    Some(self.last_now_us.saturating_add(READOUT_POLL_US).min(deadline_us))
+                }
+            }
+            Phase::Idle | Phase::Moving { .. } => None,
+        }
+    }
+
+    /// Act on one host command (already sequence-checked by the link).
+    pub fn handle<H: Hal, O: Outbox>(&mut self, msg: HostMsg, hal: &mut H, out: &mut O) {
+        self.last_now_us = self.last_now_us.max(hal.now_us());
+        // Any command may have created work (a start, a plan, an ack that frees the buffer).
+        self.more_work = true;
+        let command = match &msg {
+            HostMsg::Hello(theirs) => {
+                self.handshake = check_handshake(*theirs).is_ok();
+                // Answer either way: the host reports a mismatch from our Hello.
+                out.reply(&DeviceMsg::Hello(Hello::OURS));
+                return;
+            }
+            HostMsg::GetStatus => {
+                out.reply(&DeviceMsg::Status(self.status(out.bad_frames())));
+                return;
+            }
+            HostMsg::Configure(_) => Command::Configure,
+            HostMsg::Plan(_) => Command::Plan,
+            HostMsg::PlanEnd { .. } => Command::PlanEnd,
+            HostMsg::Home => Command::Home,
+            HostMsg::Start => Command::Start,
+            HostMsg::Pause => Command::Pause,
+            HostMsg::Resume => Command::Resume,
+            HostMsg::Abort => Command::Abort,
+            HostMsg::AckMeasurements { .. } => Command::Ack,
+            HostMsg::ResendMeasurements { .. } => Command::Resend,
+        };
+        if !self.handshake {
+            out.reply(&DeviceMsg::Refused {
+                command,
+                reason: RefuseReason::NoHandshake,
+            });
+            return;
+        }
+        let result = match msg {
+            HostMsg::Configure(cfg) => self.configure(cfg, out),
+            HostMsg::Plan(chunk) => self.take_plan(&chunk, out),
+            HostMsg::PlanEnd { total } => self.end_plan(total),
+            HostMsg::Home => self.home(),
+            HostMsg::Start => self.start(),
+            HostMsg::Pause => self.pause(),
+            HostMsg::Resume => self.resume(),
+            HostMsg::Abort => self.abort(),
+            HostMsg::AckMeasurements { through } => self.measurements.ack(through),
+            HostMsg::ResendMeasurements { from } => self.measurements.resend(from),
+            HostMsg::Hello(_) | HostMsg::GetStatus => Ok(()),
+        };
+        if let Err(reason) = result {
+            out.reply(&DeviceMsg::Refused { command, reason });
+        }
+    }
+
+    fn wrong_state(&self) -> RefuseReason {
+        RefuseReason::WrongState(self.state)
+    }
+
+    fn configure<O: Outbox>(&mut self, cfg: InstrumentConfig<f32>, out: &mut O) -> Result<(), RefuseReason> {
+        use ControllerState::*;
+        if !matches!(self.state, Idle | Ready | Done) || self.stepper.is_moving() {
+            return Err(self.wrong_state());
+        }
+        let kin = Kinematics::new(cfg).map_err(RefuseReason::BadConfig)?;
+        // The same instrument again keeps its homing; another one may count steps differently.
+        let same = self.kin.first().is_some_and(|k| *k.config() == cfg);
+        if !same {
+            self.homed = false;
+        }
+        self.state = if self.homed { Ready } else { Idle };
+        self.guard = Some(SeparationGuard::new(&kin));
+        self.kin.clear();
+        // Cannot fail: cleared just above.
+        let _ = self.kin.push(kin);
+        self.plan.reset(self.stepper.position());
+        self.plan_done = 0;
+        self.measurements.reset();
+        self.phase = Phase::Idle;
+        self.pause = PauseCause::NotPaused;
+        self.grant_credit(out);
+        Ok(())
+    }
+
+    fn grant_credit<O: Outbox>(&mut self, out: &mut O) {
+        let free = self.plan.free();
+        out.reply(&DeviceMsg::Credit {
+            next_index: self.plan.next_index(),
+            free,
+        });
+        self.credit_reported = Some(free);
+    }
+
+    fn take_plan<O: Outbox>(&mut self, chunk: &gonio_shared::msg::PlanChunk, out: &mut O) -> Result<(), RefuseReason> {
+        let (Some(kin), Some(guard)) = (self.kin.first(), self.guard.as_ref()) else {
+            return Err(RefuseReason::NotConfigured);
+        };
+        if matches!(self.state, ControllerState::Fault | ControllerState::Done) {
+            return Err(self.wrong_state());
+        }
+        match self.plan.intake(chunk, kin, guard)? {
+            Intake::Accepted => self.grant_credit(out),
+            Intake::Rejected { index, reason } => {
+                let fault = Fault::Unreachable { index, reason };
+                self.enter_fault(fault);
+                // Answered right away (the link reserved room), so not queued for `report`.
+                self.faults_unreported.pop_back();
+                out.reply(&DeviceMsg::Fault(fault));
+            }
+        }
+        Ok(())
+    }
+
+    fn end_plan(&mut self, total: u32) -> Result<(), RefuseReason> {
+        if self.kin.is_empty() {
+            return Err(RefuseReason::NotConfigured);
+        }
+        if matches!(self.state, ControllerState::Fault | ControllerState::Done) {
+            return Err(self.wrong_state());
+        }
+        self.plan.set_end(total)
+    }
+
+    fn home(&mut self) -> Result<(), RefuseReason> {
+        use ControllerState::*;
+        let Some(kin) = self.kin.first() else {
+            return Err(RefuseReason::NotConfigured);
+        };
+        if !matches!(self.state, Idle | Ready | Done | Fault) || self.stepper.is_moving() {
+            return Err(self.wrong_state());
+        }
+        let rest = AXES.map(|a| homing::rest_position(kin, a));
+        self.state = Homing;
+        self.homed = false;
+        self.homing = homing::Homing::new();
+        self.phase = Phase::Idle;
+        self.pause = PauseCause::NotPaused;
+        // Homing ends at the rest pose: a plan streamed meanwhile is planned from there.
+        self.plan.reset(rest);
+        self.plan_done = 0;
+        self.credit_reported = None;
+        Ok(())
+    }
+
+    fn start(&mut self) -> Result<(), RefuseReason> {
+        if self.kin.is_empty() {
+            return Err(RefuseReason::NotConfigured);
+        }
+        if self.state != ControllerState::Ready || self.stepper.is_moving() {
+            return Err(self.wrong_state());
+        }
+        self.state = ControllerState::Running;
+        self.phase = Phase::Idle;
+        Ok(())
+    }
+
+    fn pause(&mut self) -> Result<(), RefuseReason> {
+        match self.state {
+            ControllerState::Running | ControllerState::Paused => {
+                self.state = ControllerState::Paused;
+                self.pause = PauseCause::Host;
+                Ok(())
+            }
+            _ => Err(self.wrong_state()),
+        }
+    }
+
+    fn resume(&mut self) -> Result<(), RefuseReason> {
+        if self.state != ControllerState::Paused {
+            return Err(self.wrong_state());
+        }
+        // A buffer that is still full pauses again before the next direction.
+        self.state = ControllerState::Running;
+        self.pause = PauseCause::NotPaused;
+        Ok(())
+    }
+
+    fn abort(&mut self) -> Result<(), RefuseReason> {
+        use ControllerState::*;
+        match self.state {
+            Homing => {
+                self.stepper.halt();
+                self.homed = false;
+            }
+            Fault => {
+                let needs_homing = matches!(
+                    self.last_fault(),
+                    Some(gonio_shared::msg::Fault::LimitSwitch(_) | gonio_shared::msg::Fault::HomeNotFound(_))
+                );
+                if needs_homing || self.stepper.is_moving() {
+                    return Err(self.wrong_state());
+                }
+            }
+            // A move in progress finishes its deceleration; Start is refused until it has.
+            Idle | Ready | Running | Paused | Done => {}
+        }
+        self.state = if self.homed { Ready } else { Idle };
+        self.phase = Phase::Idle;
+        self.pause = PauseCause::NotPaused;
+        self.plan.reset(self.stepper.position());
+        self.plan_done = 0;
+        self.credit_reported = None;
+        Ok(())
+    }
+
+    fn enter_fault(&mut self, fault: Fault) {
+        self.state = ControllerState::Fault;
+        self.last_fault.clear();
+        let _ = self.last_fault.push(fault);
+        // With four unreported faults the host is not reading: the first ones say what went wrong
+        // and `Status::last_fault` says where it ended, so a fifth is not queued.
+        let _queued = self.faults_unreported.push_back(fault).is_ok();
+        self.phase = Phase::Idle;
+        self.pause = PauseCause::NotPaused;
+        if matches!(fault, Fault::LimitSwitch(_) | Fault::HomeNotFound(_)) {
+            self.stepper.halt();
+            self.homed = false;
+        }
+    }
+
+    /// Run everything that is due: steps, homing, the scan, then tell the host what changed.
+    pub fn poll<H: Hal, O: Outbox>(&mut self, hal: &mut H, out: &mut O) {
+        let now = hal.now_us();
+        self.last_now_us = self.last_now_us.max(now);
+        if self.stepper.is_moving() {
+            self.drive_motion(hal, now);
+        }
+        self.more_work = true;
+        for _ in 0..TRANSITIONS_PER_POLL {
+            let progressed = match self.state {
+                ControllerState::Homing if !self.stepper.is_moving() => self.advance_homing(hal, now),
+                ControllerState::Running | ControllerState::Paused => self.advance_scan(hal, now),
+                _ => false,
+            };
+            if !progressed {
+                self.more_work = false;
+                break;
+            }
+        }
+        self.report(out);
+    }
+
+    /// Switches first (a closed switch stops everything before another step), then due steps.
+    fn drive_motion<H: Hal>(&mut self, hal: &mut H, now: u64) {
+        let Some(cfg) = self.kin.first().map(|k| *k.config()) else {
+            self.stepper.halt();
+            return;
+        };
+        if self.state == ControllerState::Homing {
+            // Only the seek looks at a switch: the others stand still, or move away from theirs.
+            if let (Some(axis), Stage::Seek) = (self.homing.axis(), self.homing.stage) {
+                if hal.limit_closed(axis) {
+                    self.stepper.halt();
+                    self.found_home(hal, now, axis);
+                    return;
+                }
+            }
+        } else {
+            for axis in AXES {
+                // A continuous axis's index sensor closes once a turn: not a limit.
+                if !cfg.axis(axis).continuous && hal.limit_closed(axis) {
+                    self.enter_fault(Fault::LimitSwitch(axis));
+                    return;
+                }
+            }
+        }
+        let guard = if self.state == ControllerState::Homing && !self.homing.arms_homed() {
+            None
+        } else {
+            self.guard
+        };
+        if let Err(e) = self.stepper.poll(hal, now, guard.as_ref()) {
+            self.motion_failed(e);
+        }
+    }
+
+    fn motion_failed(&mut self, e: StepError) {
+        let index = match self.phase {
+            Phase::Moving { index } | Phase::Settling { index, .. } | Phase::Exposing { index, .. } => index,
+            Phase::Idle => self.plan.next_index(),
+        };
+        let reason = match e {
+            StepError::Blocked => Unreachable::Blocked,
+            StepError::BadProfile => Unreachable::NotFinite,
+        };
+        self.stepper.halt();
+        self.enter_fault(Fault::Unreachable { index, reason });
+    }
+
+    fn start_move<H: Hal>(&mut self, hal: &mut H, now: u64, target: Steps, speed_scale: f32) -> bool {
+        let Some(kin) = self.kin.first() else { return false };
+        match self.stepper.start(hal, now, target, kin.config(), speed_scale) {
+            Ok(()) => true,
+            Err(e) => {
+                self.motion_failed(e);
+                false
+            }
+        }
+    }
+
+    /// The seek met the switch: that is the axis's home position; park it at its rest angle.
+    fn found_home<H: Hal>(&mut self, hal: &mut H, now: u64, axis: gonio_shared::Axis) {
+        let Some(kin) = self.kin.first() else { return };
+        let home = homing::home_position(kin.config(), axis);
+        let rest = homing::rest_position(kin, axis);
+        self.stepper.set_position(axis, home);
+        match axis {
+            gonio_shared::Axis::Light => self.homing.light_homed = true,
+            gonio_shared::Axis::Detector => self.homing.detector_homed = true,
+            _ => {}
+        }
+        let mut target = self.stepper.position();
+        if let Some(t) = target.get_mut(axis.index()) {
+            *t = rest;
+        }
+        self.homing.stage = Stage::Park;
+        self.start_move(hal, now, target, 1.0);
+    }
+
+    /// The stepper is idle during homing: start the next sub-move. `true` if something changed.
+    fn advance_homing<H: Hal>(&mut self, hal: &mut H, now: u64) -> bool {
+        let Some(cfg) = self.kin.first().map(|k| *k.config()) else {
+            return false;
+        };
+        let Some(axis) = self.homing.axis() else {
+            self.homed = true;
+            self.state = ControllerState::Ready;
+            self.status_unreported = true;
+            return false;
+        };
+        let here = self.stepper.position();
+        let i = axis.index();
+        let at = here.get(i).copied().unwrap_or(0);
+        let toward = homing::toward_switch(&cfg, axis);
+        let mut target: Steps = here;
+        match self.homing.stage {
+            Stage::Begin | Stage::BackOff => {
+                let closed = hal.limit_closed(axis);
+                if closed && self.homing.stage == Stage::BackOff {
+                    self.enter_fault(Fault::HomeNotFound(axis));
+                    return false;
+                }
+                let (distance, stage) = if closed {
+                    (-homing::backoff_steps(&cfg, axis), Stage::BackOff)
+                } else {
+                    (homing::seek_steps(&cfg, axis), Stage::Seek)
+                };
+                if let Some(t) = target.get_mut(i) {
+                    *t = at.saturating_add(toward.saturating_mul(distance));
+                }
+                self.homing.stage = stage;
+                self.start_move(hal, now, target, homing::SPEED_SCALE);
+                // A zero-length move (cannot happen with a validated config) still progresses.
+                true
+            }
+            Stage::Seek => {
+                // The whole travel went by without the switch closing.
+                self.enter_fault(Fault::HomeNotFound(axis));
+                false
+            }
+            Stage::Park => {
+                self.homing.position_in_order += 1;
+                self.homing.stage = Stage::Begin;
+                true
+            }
+        }
+    }
+
+    /// One step of the per-direction sequence. `true` if it moved on without waiting.
+    fn advance_scan<H: Hal>(&mut self, hal: &mut H, now: u64) -> bool {
+        let Some(cfg) = self.kin.first().map(|k| *k.config()) else {
+            return false;
+        };
+        match self.phase {
+            Phase::Idle => {
+                if self.state == ControllerState::Paused {
+                    if self.pause == PauseCause::MeasurementsFull && !self.measurements.is_full() {
+                        self.state = ControllerState::Running;
+                        self.pause = PauseCause::NotPaused;
+                        self.status_unreported = true;
+                        return true;
+                    }
+                    return false;
+                }
+                if self.stepper.is_moving() {
+                    return false;
+                }
+                if self.measurements.is_full() {
+                    self.state = ControllerState::Paused;
+                    self.pause = PauseCause::MeasurementsFull;
+                    self.status_unreported = true;
+                    return false;
+                }
+                if self.plan.end().is_some_and(|end| self.plan_done >= end) {
+                    self.state = ControllerState::Done;
+                    self.status_unreported = true;
+                    return false;
+                }
+                let Some(next) = self.plan.pop() else {
+                    return false; // starved: waiting for the host's next chunk
+                };
+                if self.start_move(hal, now, next.steps, 1.0) {
+                    self.phase = Phase::Moving { index: next.index };
+                    true
+                } else {
+                    false
+                }
+            }
+            Phase::Moving { index } => {
+                if self.stepper.is_moving() {
+                    return false;
+                }
+                let settle_us = u64::from(cfg.settle_ms).saturating_mul(1000);
+                self.phase = Phase::Settling {
+                    index,
+                    until_us: now.saturating_add(settle_us),
+                };
+                true
+            }
+            Phase::Settling { index, until_us } => {
+                if now < until_us {
+                    return false;
+                }
+                hal.start_exposure(cfg.exposure_us);
+                let done_us = now.saturating_add(u64::from(cfg.exposure_us));
+                self.phase = Phase::Exposing {
+                    index,
+                    done_us,
+                    deadline_us: done_us.saturating_add(DETECTOR_MARGIN_US),
+                };
+                true
+            }
+            Phase::Exposing { index, deadline_us, .. } => {
+                if let Some(counts) = hal.poll_readout() {
+                    let m = Measurement {
+                        seq: 0,
+                        index,
+                        steps: self.stepper.position(),
+                        counts,
+                        exposure_us: cfg.exposure_us,
+                        timestamp_us: now,
+                    };
+                    if self.measurements.push(m).is_err() {
+                        self.enter_fault(Fault::BufferOverflow);
+                        return false;
+                    }
+                    self.plan_done = self.plan_done.saturating_add(1);
+                    self.phase = Phase::Idle;
+                    true
+                } else if now >= deadline_us {
+                    self.enter_fault(Fault::DetectorTimeout);
+                    false
+                } else {
+                    false
+                }
+            }
+        }
+    }
+
+    /// Send what the host has not been told yet, in order of urgency, as far as the outbox allows.
+    fn report<O: Outbox>(&mut self, out: &mut O) {
+        while let Some(&f) = self.faults_unreported.front() {
+            if !out.notify(&DeviceMsg::Fault(f)) {
+                return;
+            }
+            self.faults_unreported.pop_front();
+        }
+        if self.status_unreported {
+            if !out.notify(&DeviceMsg::Status(self.status(out.bad_frames()))) {
+                return;
+            }
+            self.status_unreported = false;
+        }
+        let streaming = !self.kin.is_empty()
+            && self.plan.end().is_none()
+            && !matches!(self.state, ControllerState::Fault | ControllerState::Done);
+        if streaming {
+            let free = self.plan.free();
+            // Grant again once a chunk's worth of room opened up (or when forced).
+            let due = self
+                .credit_reported
+                .is_none_or(|c| usize::from(free) >= usize::from(c) + CHUNK_DIRECTIONS);
+            if due {
+                let credit = DeviceMsg::Credit {
+                    next_index: self.plan.next_index(),
+                    free,
+                };
+                if !out.notify(&credit) {
+                    return;
+                }
+                self.credit_reported = Some(free);
+            }
+        }
+        while let Some(m) = self.measurements.to_send() {
+            if !out.notify(&DeviceMsg::Measurement(m.clone())) {
+                return;
+            }
+            self.measurements.mark_sent();
+        }
+    }
+}

@@ -1,0 +1,54 @@
+//! The whole firmware behind one value: the link and the controller, wired together.
+//!
+//! The binary (or a test, or the virtual gonio) owns a [`Device`] and a HAL and calls, in any order:
+//! [`Device::receive`] with bytes from the host, [`Device::poll`] whenever
+//! [`Device::next_deadline_us`] has passed or anything was received, and [`Device::drain_outbox`]
+//! to get bytes for the host. Nothing here blocks, allocates or panics.
+
+use crate::controller::Controller;
+use crate::hal::Hal;
+use crate::link::Link;
+
+#[derive(Default)]
+pub struct Device {
+    link: Link,
+    controller: Controller,
+}
+
+impl Device {
+    pub const fn new() -> Self {
+        Self {
+            link: Link::new(),
+            controller: Controller::new(),
+        }
+    }
+
+    /// Feed bytes from the host; returns how many were consumed (all of them unless the outbox
+    /// is too full to answer: drain it and offer the rest again).
+    pub fn receive<H: Hal>(&mut self, hal: &mut H, bytes: &[u8]) -> usize {
+        self.link.receive(bytes, &mut self.controller, hal)
+    }
+
+    /// Step, home, scan and report whatever is due now.
+    pub fn poll<H: Hal>(&mut self, hal: &mut H) {
+        self.controller.poll(hal, &mut self.link);
+    }
+
+    /// Move outgoing bytes into `out`; returns how many.
+    pub fn drain_outbox(&mut self, out: &mut [u8]) -> usize {
+        self.link.drain(out)
+    }
+
+    /// When `poll` next has work; `None` when only the host can make progress.
+    pub fn next_deadline_us(&self) -> Option<u64> {
+        self.controller.next_deadline_us()
+    }
+
+    pub fn controller(&self) -> &Controller {
+        &self.controller
+    }
+
+    pub fn link(&self) -> &Link {
+        &self.link
+    }
+}

@@ -1,0 +1,173 @@
+//! The link layer: bytes in, checked host frames to the controller, encoded device frames out.
+//!
+//! - Every byte goes through the shared [`FrameDecoder`]; a bad frame is answered with a `Nak`
+//!   carrying the sequence number the link expects next, so the host resends from there.
+//! - Host sequence numbers: the expected one is executed and acknowledged; a recent one (a resend
+//!   whose `Ack` was lost) is acknowledged again but not executed; anything else is a gap and is
+//!   NAKed. `Hello` is the resynchronisation point: it is accepted at any sequence number.
+//! - Output frames go into a bounded byte outbox that the binary drains to USB/UART. Input is only
+//!   consumed while the outbox has room for the worst-case replies to one frame, so a host that
+//!   does not read cannot make the firmware drop a reply: it is throttled instead.
+
+use crate::capacity::OUTBOX_BYTES;
+use crate::controller::Controller;
+use crate::hal::Hal;
+use gonio_shared::frame::{encode, FrameDecoder, MAX_WIRE_FRAME};
+use gonio_shared::msg::{DeviceMsg, HostMsg, NakReason};
+use heapless::Deque;
+
+/// How far behind the expected sequence number a frame counts as a duplicate (re-ACKed) rather
+/// than a gap (NAKed). Larger than any sane number of frames in flight.
+pub const DUPLICATE_WINDOW: u16 = 64;
+
+/// Frames one host frame can cause: `Ack` plus at most two answers (e.g. `Fault` + `Credit`).
+const REPLIES_PER_FRAME: usize = 3;
+const REPLY_RESERVE: usize = REPLIES_PER_FRAME * MAX_WIRE_FRAME;
+
+/// Where the controller's messages go.
+pub trait Outbox {
+    /// Send an answer to the host frame being handled (the link reserved room for it).
+    fn reply(&mut self, msg: &DeviceMsg);
+    /// Send a message of the controller's own (measurement, fault, credit, status) if it fits
+    /// without eating into the reply reserve; `false` means "not now, try again later".
+    fn notify(&mut self, msg: &DeviceMsg) -> bool;
+    /// Frames the decoder dropped since start (for `Status`).
+    fn bad_frames(&self) -> u32;
+}
+
+pub struct Link {
+    decoder: FrameDecoder,
+    /// Host sequence number expected next.
+    expected: u16,
+    /// Sequence number of our next frame.
+    tx_seq: u16,
+    outbox: Deque<u8, OUTBOX_BYTES>,
+    /// Replies that did not fit (a bug in the reserve arithmetic if ever non-zero).
+    lost_replies: u32,
+}
+
+impl Default for Link {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Link {
+    pub const fn new() -> Self {
+        Self {
+            decoder: FrameDecoder::new(),
+            expected: 0,
+            tx_seq: 0,
+            outbox: Deque::new(),
+            lost_replies: 0,
+        }
+    }
+
+    /// Forget a partial frame (the host reconnected).
+    pub fn reset_decoder(&mut self) {
+        self.decoder.reset();
+    }
+
+    pub fn expected_seq(&self) -> u16 {
+        self.expected
+    }
+
+    pub fn lost_replies(&self) -> u32 {
+        self.lost_replies
+    }
+
+    pub fn decoder_stats(&self) -> &gonio_shared::frame::DecoderStats {
+        self.decoder.stats()
+    }
+
+    /// Bytes waiting in the outbox.
+    pub fn pending_bytes(&self) -> usize {
+        self.outbox.len()
+    }
+
+    fn free(&self) -> usize {
+        OUTBOX_BYTES.saturating_sub(self.outbox.len())
+    }
+
+    /// Move up to `out.len()` outbox bytes into `out`; returns how many.
+    pub fn drain(&mut self, out: &mut [u8]) -> usize {
+        let mut n = 0;
+        for slot in out.iter_mut() {
+            let Some(b) = self.outbox.pop_front() else { break };
+            *slot = b;
+            n += 1;
+        }
+        n
+    }
+
+    /// Feed received bytes. Returns how many were consumed: fewer than `bytes.len()` when the
+    /// outbox is too full to answer; the caller drains it and offers the rest again.
+    pub fn receive<H: Hal>(&mut self, bytes: &[u8], controller: &mut Controller, hal: &mut H) -> usize {
+        for (consumed, &byte) in bytes.iter().enumerate() {
+            if self.free() < REPLY_RESERVE {
+                return consumed;
+            }
+            match self.decoder.push::<HostMsg>(byte) {
+                None => {}
+                Some(Err(e)) => self.nak(e.nak_reason()),
+                Some(Ok(frame)) => self.on_frame(frame.seq, frame.msg, controller, hal),
+            }
+        }
+        bytes.len()
+    }
+
+    fn on_frame<H: Hal>(&mut self, seq: u16, msg: HostMsg, controller: &mut Controller, hal: &mut H) {
+        let fresh = seq == self.expected || matches!(msg, HostMsg::Hello(_));
+        if fresh {
+            self.expected = seq.wrapping_add(1);
+            self.reply(&DeviceMsg::Ack { seq });
+            controller.handle(msg, hal, self);
+            return;
+        }
+        let behind = self.expected.wrapping_sub(seq);
+        if behind <= DUPLICATE_WINDOW {
+            // Already executed; the host missed our Ack.
+            self.reply(&DeviceMsg::Ack { seq });
+        } else {
+            self.nak(NakReason::Sequence);
+        }
+    }
+
+    fn nak(&mut self, reason: NakReason) {
+        let expected = self.expected;
+        self.reply(&DeviceMsg::Nak { expected, reason });
+    }
+
+    /// Encode `msg` into the outbox if it leaves `keep_free` bytes free.
+    fn push_frame(&mut self, msg: &DeviceMsg, keep_free: usize) -> bool {
+        let mut frame = [0u8; MAX_WIRE_FRAME];
+        let Ok(n) = encode(self.tx_seq, msg, &mut frame) else {
+            return false;
+        };
+        if self.free() < n.saturating_add(keep_free) {
+            return false;
+        }
+        for &b in frame.get(..n).unwrap_or(&[]) {
+            // Cannot fail: room was checked above.
+            let _ = self.outbox.push_back(b);
+        }
+        self.tx_seq = self.tx_seq.wrapping_add(1);
+        true
+    }
+}
+
+impl Outbox for Link {
+    fn reply(&mut self, msg: &DeviceMsg) {
+        if !self.push_frame(msg, 0) {
+            self.lost_replies = self.lost_replies.saturating_add(1);
+        }
+    }
+
+    fn notify(&mut self, msg: &DeviceMsg) -> bool {
+        self.push_frame(msg, REPLY_RESERVE)
+    }
+
+    fn bad_frames(&self) -> u32 {
+        self.decoder.stats().bad()
+    }
+}

@@ -1,0 +1,162 @@
+//! Plan intake: the bounded ring of accepted directions, already turned into step targets.
+//!
+//! Every direction is checked when it arrives, not when it is reached: inverse kinematics from the
+//! previous accepted pose (so the solution branch is the one the move will actually start from),
+//! integer step targets, then the quantised pose against the soft limits and the separation guard.
+//! A direction that fails is rejected with its index and reason and nothing after it in its chunk
+//! is taken; the MCU never repairs a plan (Klipper's stance).
+
+use crate::capacity::PLAN_CAPACITY;
+use crate::separation::SeparationGuard;
+use gonio_shared::kinematics::{Kinematics, Steps, Unreachable};
+use gonio_shared::msg::{Direction, PlanChunk, RefuseReason};
+use heapless::Deque;
+
+/// One accepted plan direction: its index and the step positions that measure it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PlannedPose {
+    pub index: u32,
+    pub steps: Steps,
+}
+
+/// The outcome of a chunk the queue had room for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Intake {
+    /// Every direction of the chunk was accepted.
+    Accepted,
+    /// Directions before `index` were accepted; `index` is unreachable and the rest was dropped.
+    Rejected { index: u32, reason: Unreachable },
+}
+
+pub struct PlanQueue {
+    queue: Deque<PlannedPose, PLAN_CAPACITY>,
+    /// Index the next chunk must start at.
+    next_index: u32,
+    /// `PlanEnd { total }`, once received.
+    end: Option<u32>,
+    /// Step positions the next accepted direction is planned from.
+    tail: Steps,
+}
+
+impl Default for PlanQueue {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl PlanQueue {
+    pub const fn new() -> Self {
+        Self {
+            queue: Deque::new(),
+            next_index: 0,
+            end: None,
+            tail: [0; 4],
+        }
+    }
+
+    /// Forget the plan; the next one starts at index 0, planned from `from`.
+    pub fn reset(&mut self, from: Steps) {
+        self.queue.clear();
+        self.next_index = 0;
+        self.end = None;
+        self.tail = from;
+    }
+
+    pub fn next_index(&self) -> u32 {
+        self.next_index
+    }
+
+    pub fn end(&self) -> Option<u32> {
+        self.end
+    }
+
+    pub fn len(&self) -> usize {
+        self.queue.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.queue.is_empty()
+    }
+
+    /// Directions the queue can take now (what a `Credit` grants); 0 once the plan has ended.
+    pub fn free(&self) -> u16 {
+        if self.end.is_some() {
+            return 0;
+        }
+        let free = PLAN_CAPACITY.saturating_sub(self.queue.len());
+        u16::try_from(free).unwrap_or(u16::MAX)
+    }
+
+    pub fn pop(&mut self) -> Option<PlannedPose> {
+        self.queue.pop_front()
+    }
+
+    /// Take a chunk: refused whole (nothing changes) if it does not continue the plan or exceeds the
+    /// credit, otherwise accepted up to its first unreachable direction.
+    pub fn intake(
+        &mut self,
+        chunk: &PlanChunk,
+        kin: &Kinematics<f32>,
+        guard: &SeparationGuard,
+    ) -> Result<Intake, RefuseReason> {
+        if chunk.first_index != self.next_index {
+            return Err(RefuseReason::OutOfOrder {
+                expected: self.next_index,
+            });
+        }
+        if chunk.directions.len() > usize::from(self.free()) {
+            return Err(RefuseReason::NoCredit);
+        }
+        for d in chunk.directions.iter() {
+            let index = self.next_index;
+            let steps = match check_direction(kin, guard, d, &self.tail) {
+                Ok(s) => s,
+                Err(reason) => return Ok(Intake::Rejected { index, reason }),
+            };
+            let Some(after) = index.checked_add(1) else {
+                return Err(RefuseReason::NoCredit);
+            };
+            if self.queue.push_back(PlannedPose { index, steps }).is_err() {
+                // Cannot happen: the credit check above left room for the whole chunk.
+                return Err(RefuseReason::NoCredit);
+            }
+            self.next_index = after;
+            self.tail = steps;
+        }
+        Ok(Intake::Accepted)
+    }
+
+    /// `PlanEnd { total }`: no directions at or after `total`.
+    pub fn set_end(&mut self, total: u32) -> Result<(), RefuseReason> {
+        if total < self.next_index {
+            return Err(RefuseReason::OutOfOrder {
+                expected: self.next_index,
+            });
+        }
+        match self.end {
+            Some(end) if end != total => Err(RefuseReason::OutOfOrder { expected: end }),
+            _ => {
+                self.end = Some(total);
+                Ok(())
+            }
+        }
+    }
+}
+
+/// The step targets that measure `d`, planned from the step positions `from`, or why it cannot be.
+pub fn check_direction(
+    kin: &Kinematics<f32>,
+    guard: &SeparationGuard,
+    d: &Direction,
+    from: &Steps,
+) -> Result<Steps, Unreachable> {
+    let current = kin.from_steps(from);
+    let pose = kin.inverse_angles(d.theta_i, d.phi_i, d.theta_o, d.phi_o, &current)?;
+    let steps = kin.to_steps(&pose)?;
+    // Rounding to steps may push an axis past a soft limit: check the pose actually reached.
+    kin.check_pose(&kin.from_steps(&steps))?;
+    if !guard.allows_target(&steps) {
+        return Err(Unreachable::Blocked);
+    }
+    Ok(steps)
+}

@@ -1,0 +1,213 @@
+//! The link under abuse: garbage, truncated, corrupted, duplicated and reordered frames never
+//! panic, are NAKed with the sequence number the link expects, and never cause motion.
+
+mod common;
+
+use common::*;
+use gonio_shared::msg::{ControllerState, DeviceMsg, Hello, HostMsg, NakReason};
+use proptest::prelude::*;
+use proptest::test_runner::{Config, RngSeed};
+
+fn fixed(cases: u32) -> Config {
+    Config {
+        cases,
+        rng_seed: RngSeed::Fixed(0x11_4c),
+        failure_persistence: None,
+        ..Config::default()
+    }
+}
+
+fn naks(msgs: &[DeviceMsg]) -> Vec<(u16, NakReason)> {
+    msgs.iter()
+        .filter_map(|m| match m {
+            DeviceMsg::Nak { expected, reason } => Some((*expected, *reason)),
+            _ => None,
+        })
+        .collect()
+}
+
+fn acks(msgs: &[DeviceMsg]) -> Vec<u16> {
+    msgs.iter()
+        .filter_map(|m| match m {
+            DeviceMsg::Ack { seq } => Some(*seq),
+            _ => None,
+        })
+        .collect()
+}
+
+/// Homed, a plan loaded and ended: one valid `Start` away from moving.
+fn armed() -> Bench {
+    let mut b = Bench::new(coarse_config());
+    b.handshake_and_configure();
+    b.home();
+    b.send_plan(0, &[dir_deg(60.0, 0.0, 20.0, 180.0), dir_deg(10.0, 0.0, 70.0, 180.0)]);
+    b.send(HostMsg::PlanEnd { total: 2 });
+    assert_eq!(b.dev.controller().state(), ControllerState::Ready);
+    b.hal.steps.clear();
+    b.hal.step_count = 0;
+    b
+}
+
+/// Runs the device for a while and checks it did not move or measure.
+fn assert_still(b: &mut Bench) {
+    b.run_idle(10_000_000);
+    assert_eq!(b.hal.step_count, 0, "motion from a bad frame");
+    assert_eq!(b.hal.exposure_count(), 0);
+    assert_eq!(b.dev.controller().state(), ControllerState::Ready);
+}
+
+proptest! {
+    #![proptest_config(fixed(256))]
+
+    /// Arbitrary bytes: no panic, one NAK per dropped candidate frame, no motion.
+    #[test]
+    fn garbage_is_naked_and_never_moves(garbage in prop::collection::vec(any::<u8>(), 0..1500)) {
+        let mut b = armed();
+        let bad_before = b.dev.link().decoder_stats().bad();
+        let r = b.send_raw(&garbage);
+        let dropped = b.dev.link().decoder_stats().bad() - bad_before;
+        prop_assert_eq!(naks(&r).len() as u32, dropped);
+        prop_assert!(acks(&r).is_empty(), "garbage was acknowledged: {:?}", r);
+        assert_still(&mut b);
+        // The link still works afterwards (a delimiter flushes any partial frame first).
+        b.send_raw(&[0]);
+        let r = b.send(HostMsg::GetStatus);
+        prop_assert!(r.iter().any(|m| matches!(m, DeviceMsg::Status(_))));
+    }
+
+    /// A `Start` frame cut short or with one bit flipped is NAKed, and the device stays still.
+    #[test]
+    fn truncated_or_corrupted_start_is_naked_and_never_moves(
+        cut in any::<prop::sample::Index>(),
+        flip in any::<prop::sample::Index>(),
+        bit in 0u8..8,
+        truncate in any::<bool>(),
+    ) {
+        let mut b = armed();
+        let seq = b.host_seq;
+        let f = frame(seq, &HostMsg::Start);
+        let bad = if truncate {
+            let mut t = f[..cut.index(f.len() - 1)].to_vec();
+            t.push(0);
+            t
+        } else {
+            let mut t = f.clone();
+            t[flip.index(f.len() - 1)] ^= 1 << bit;
+            t
+        };
+        let r = b.send_raw(&bad);
+        prop_assert!(acks(&r).is_empty(), "{:?}", r);
+        for (expected, _) in naks(&r) {
+            prop_assert_eq!(expected, seq);
+        }
+        assert_still(&mut b);
+        // The intact frame, resent with the same sequence number, is executed.
+        let r = b.send_raw(&f);
+        prop_assert_eq!(acks(&r), vec![seq]);
+        prop_assert_eq!(b.dev.controller().state(), ControllerState::Running);
+    }
+}
+
+#[test]
+fn an_empty_truncation_still_gets_a_nak_when_bytes_preceded_it() {
+    let mut b = armed();
+    let r = b.send_raw(&[0x42, 0x00]);
+    assert_eq!(naks(&r), vec![(b.host_seq, NakReason::Cobs)]);
+}
+
+#[test]
+fn duplicates_are_reacknowledged_but_not_executed() {
+    let mut b = armed();
+    // Home once, then the same frame again (the host missed our Ack).
+    let seq = b.host_seq;
+    b.host_seq += 1;
+    let home = frame(seq, &HostMsg::Home);
+    let r = b.send_raw(&home);
+    assert_eq!(acks(&r), vec![seq]);
+    assert_eq!(b.dev.controller().state(), ControllerState::Homing);
+    let r = b.send_raw(&home);
+    assert_eq!(acks(&r), vec![seq], "a duplicate is acknowledged again");
+    assert!(
+        !r.iter().any(|m| matches!(m, DeviceMsg::Refused { .. })),
+        "not executed again: {r:?}"
+    );
+    b.run_idle(600_000_000);
+    // A duplicated plan chunk is not taken twice.
+    let plan_next = b.status().plan_next;
+    let seq = b.host_seq;
+    let r = b.send_plan(0, &[dir_deg(30.0, 0.0, 50.0, 180.0)]);
+    assert!(!r.iter().any(|m| matches!(m, DeviceMsg::Refused { .. })), "{r:?}");
+    let chunk = {
+        let mut directions = heapless::Vec::new();
+        directions.push(dir_deg(30.0, 0.0, 50.0, 180.0)).unwrap();
+        HostMsg::Plan(gonio_shared::msg::PlanChunk {
+            first_index: 0,
+            directions,
+        })
+    };
+    let r = b.send_raw(&frame(seq, &chunk));
+    assert_eq!(acks(&r), vec![seq]);
+    assert!(!r.iter().any(|m| matches!(m, DeviceMsg::Refused { .. })), "{r:?}");
+    assert_eq!(b.status().plan_next, plan_next + 1);
+}
+
+#[test]
+fn reordered_frames_are_naked_until_the_gap_is_filled() {
+    let mut b = armed();
+    let s = b.host_seq;
+    let start = frame(s, &HostMsg::Start);
+    let pause = frame(s + 1, &HostMsg::Pause);
+    // Pause overtakes Start: NAKed, not executed, and no motion.
+    let r = b.send_raw(&pause);
+    assert_eq!(naks(&r), vec![(s, NakReason::Sequence)]);
+    assert_still(&mut b);
+    // A frame from far in the past or the future is a gap too.
+    let r = b.send_raw(&frame(s.wrapping_add(1000), &HostMsg::Start));
+    assert_eq!(naks(&r), vec![(s, NakReason::Sequence)]);
+    assert_still(&mut b);
+    // Then in order.
+    assert_eq!(acks(&b.send_raw(&start)), vec![s]);
+    assert_eq!(acks(&b.send_raw(&pause)), vec![s + 1]);
+    assert_eq!(b.dev.controller().state(), ControllerState::Paused);
+}
+
+#[test]
+fn hello_resynchronises_the_sequence_numbers() {
+    let mut b = armed();
+    let r = b.send_raw(&frame(40_000, &HostMsg::Hello(Hello::OURS)));
+    assert_eq!(acks(&r), vec![40_000]);
+    let r = b.send_raw(&frame(40_001, &HostMsg::GetStatus));
+    assert_eq!(acks(&r), vec![40_001]);
+    // Wrapping around u16 is fine.
+    let r = b.send_raw(&frame(65_535, &HostMsg::Hello(Hello::OURS)));
+    assert_eq!(acks(&r), vec![65_535]);
+    assert_eq!(acks(&b.send_raw(&frame(0, &HostMsg::GetStatus))), vec![0]);
+}
+
+#[test]
+fn a_host_that_never_reads_is_throttled_not_answered_with_lost_replies() {
+    let mut b = armed();
+    // 500 status requests in one go, without draining the outbox in between.
+    let mut bytes = Vec::new();
+    for k in 0..500u16 {
+        bytes.extend(frame(b.host_seq + k, &HostMsg::GetStatus));
+    }
+    let log_start = b.log.len();
+    let consumed = b.dev.receive(&mut b.hal, &bytes);
+    assert!(
+        consumed < bytes.len(),
+        "the device must stop reading when it cannot answer"
+    );
+    assert_eq!(b.dev.link().lost_replies(), 0);
+    // Draining lets the rest through, and every request is answered.
+    b.host_seq += 500;
+    b.collect();
+    let before = b.log.len();
+    b.send_raw(&bytes[consumed..]);
+    let statuses = b.log[log_start..]
+        .iter()
+        .filter(|m| matches!(m, DeviceMsg::Status(_)))
+        .count();
+    assert_eq!(statuses, 500, "{} messages after the drain", b.log.len() - before);
+    assert_eq!(b.dev.link().lost_replies(), 0);
+}
