@@ -39,6 +39,12 @@ impl Device {
         self.link.drain(out)
     }
 
+    /// Forget a partly received frame, e.g. when the USB host reconnects: its tail will never come,
+    /// and the next session's first frame must not be glued to it.
+    pub fn reset_link_decoder(&mut self) {
+        self.link.reset_decoder();
+    }
+
     /// When `poll` next has work; `None` when only the host can make progress.
     pub fn next_deadline_us(&self) -> Option<u64> {
         self.controller.next_deadline_us()

@@ -3,3 +3,4 @@
 
 pub mod brdf;
 pub mod instrument;
+pub mod render;

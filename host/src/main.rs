@@ -4,6 +4,7 @@ use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use gonio::brdf::cli::{parse_direction, BrdfCmd, Direction};
 use gonio::instrument::{self, survey};
+use gonio::render::cli::{CompareArgs, EnvmapCmd, RenderArgs};
 use gonio_shared::kinematics::Kinematics;
 use gonio_shared::{Axis, AXES};
 use std::path::PathBuf;
@@ -30,6 +31,13 @@ enum Command {
     Instrument(InstrumentCmd),
     /// The wire protocol this build speaks.
     Protocol,
+    /// Render a scene file to .exr (linear) or .png (tone-mapped sRGB).
+    Render(RenderArgs),
+    /// Compare two images: RMSE, PSNR and mean FLIP; optionally write the FLIP error map.
+    Compare(CompareArgs),
+    /// Generate the project's environment maps (examples/sky.exr).
+    #[command(subcommand)]
+    Envmap(EnvmapCmd),
 }
 
 #[derive(Subcommand)]
@@ -74,6 +82,9 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Brdf(cmd) => gonio::brdf::cli::run(cmd),
         Command::Instrument(cmd) => run_instrument(cmd),
+        Command::Render(args) => gonio::render::cli::run_render(args),
+        Command::Compare(args) => gonio::render::cli::run_compare(args),
+        Command::Envmap(cmd) => gonio::render::cli::run_envmap(cmd),
         Command::Protocol => {
             use gonio_shared::frame::{MAX_PAYLOAD, MAX_WIRE_FRAME};
             use gonio_shared::msg::{caps, PROTOCOL_VERSION, SCHEMA_HASH};

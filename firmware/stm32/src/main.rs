@@ -1,25 +1,42 @@
 //! gonio firmware for the STM32F411CE "Black Pill" (embassy).
 //!
-//! Today's bring-up binary: clocks, USB CDC-ACM, the shared frame decoder on every received byte,
-//! one STEP pulse on the light axis per good host frame, and the PC13 LED blinking. The controller
-//! itself (planning, homing, measurement) lives in the `gonio-firmware` logic crate and is wired in
-//! here with the firmware issue; this crate stays glue only.
+//! Glue only: the controller (link, plan streaming, homing, stepping, measurement) is
+//! `gonio_firmware::Device`, driven here exactly as the host test bench drives it
+//! (`firmware/tests/common/mod.rs`): bytes from USB go into `Device::receive`, `Device::poll` runs
+//! whenever `Device::next_deadline_us` has passed or bytes arrived, and the outbox goes back to USB.
+//! The board's pins are `board::BoardHal`.
+//!
+//! Tasks:
+//! - `usb_task` runs the USB device stack;
+//! - `controller_task` owns the `Device` and the HAL: it waits on a USB packet, the controller's next
+//!   deadline (`Timer::at`) or room in the TX pipe, whichever comes first;
+//! - `usb_tx_task` moves the TX pipe to USB in 64-byte packets (with a zero-length packet after a
+//!   full one), so a host that is slow to read never holds up step timing;
+//! - `blink` is the PC13 heartbeat.
 #![no_std]
 #![no_main]
 
+mod board;
+
+use board::{AxisPins, BoardHal, Detector, SYSCLK_HZ};
 use defmt::{info, warn};
 use embassy_executor::Spawner;
-use embassy_stm32::gpio::{Level, Output, Speed};
+use embassy_futures::select::{select3, Either3};
+use embassy_futures::yield_now;
+use embassy_stm32::adc::{Adc, AdcChannel};
+use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::usb::{self, Driver};
 use embassy_stm32::{bind_interrupts, peripherals, Config};
-use embassy_time::Timer;
-use embassy_usb::class::cdc_acm::{CdcAcmClass, State};
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::pipe::Pipe;
+use embassy_time::{Instant, Timer};
+use embassy_usb::class::cdc_acm::{CdcAcmClass, Receiver, Sender, State};
 use embassy_usb::driver::EndpointError;
 use embassy_usb::{Builder, UsbDevice};
-use gonio_shared::frame::{Frame, FrameDecoder, FrameError};
-use gonio_shared::msg::HostMsg;
-use static_cell::StaticCell;
+use gonio_firmware::{Device, Hal};
+use gonio_shared::msg::{ControllerState, Fault};
+use static_cell::{ConstStaticCell, StaticCell};
 use {defmt_rtt as _, panic_probe as _};
 
 bind_interrupts!(struct Irqs {
@@ -28,15 +45,17 @@ bind_interrupts!(struct Irqs {
 
 type UsbDriver = Driver<'static, peripherals::USB_OTG_FS>;
 
-/// SYSCLK; the step pulse width below is counted in its cycles.
-const SYSCLK_HZ: u32 = 96_000_000;
-/// STEP high time: 5 us, above every common driver's minimum (DRV8825 1.9 us, A4988 1 us, TMC 100 ns).
-const STEP_PULSE_CYCLES: u32 = SYSCLK_HZ / 1_000_000 * 5;
 /// Bulk endpoint size of a full-speed CDC-ACM device.
-const USB_PACKET: u16 = 64;
+const USB_PACKET: usize = 64;
+/// Bytes between the controller and the USB writer. The controller's own outbox (2 KiB) is the
+/// real buffer; this only decouples USB write latency from the controller loop.
+const TX_PIPE_BYTES: usize = 256;
 /// pid.codes test VID/PID: fine on the bench, to be replaced by an allocated PID before shipping.
 const USB_VID: u16 = 0x1209;
 const USB_PID: u16 = 0x0001;
+
+/// Outgoing bytes, controller -> USB writer.
+static TX_PIPE: Pipe<CriticalSectionRawMutex, TX_PIPE_BYTES> = Pipe::new();
 
 /// 25 MHz HSE -> PLL: /25 = 1 MHz, x192 = 192 MHz VCO; P /2 = 96 MHz SYSCLK, Q /4 = 48 MHz USB.
 /// APB1 is capped at 50 MHz on the F411, hence /2 (48 MHz, timers 96 MHz); APB2 runs at 96 MHz.
@@ -72,8 +91,54 @@ async fn main(spawner: Spawner) {
 
     // Black Pill user LED, active low: start off.
     let led = Output::new(p.PC13, Level::High, Speed::Low);
-    // Light axis STEP (see README for the full pin table); idle low, pulses high.
-    let light_step = Output::new(p.PB0, Level::Low, Speed::Medium);
+
+    // Steppers (README pin table), indexed by `Axis::index`: light, detector, tilt, azimuth.
+    // STEP idles low and pulses high; ENABLE is active low and driven active from here on.
+    let pins = AxisPins {
+        step: [
+            Output::new(p.PB0, Level::Low, Speed::Medium),
+            Output::new(p.PB1, Level::Low, Speed::Medium),
+            Output::new(p.PB6, Level::Low, Speed::Medium),
+            Output::new(p.PB7, Level::Low, Speed::Medium),
+        ],
+        dir: [
+            Output::new(p.PB12, Level::Low, Speed::Medium),
+            Output::new(p.PB13, Level::Low, Speed::Medium),
+            Output::new(p.PB14, Level::Low, Speed::Medium),
+            Output::new(p.PB15, Level::Low, Speed::Medium),
+        ],
+        enable: [
+            Output::new(p.PB8, Level::Low, Speed::Low),
+            Output::new(p.PB9, Level::Low, Speed::Low),
+            Output::new(p.PB4, Level::Low, Speed::Low),
+            Output::new(p.PA15, Level::Low, Speed::Low),
+        ],
+        // Switches to GND, closed = low.
+        limit: [
+            Input::new(p.PA1, Pull::Up),
+            Input::new(p.PA2, Pull::Up),
+            Input::new(p.PA3, Pull::Up),
+            Input::new(p.PB5, Pull::Up),
+        ],
+    };
+    // Internal-ADC detector: ADC1_IN4..IN7 on PA4..PA7, channel order = readout order.
+    let detector = Detector {
+        adc: Adc::new(p.ADC1),
+        channels: [
+            p.PA4.degrade_adc(),
+            p.PA5.degrade_adc(),
+            p.PA6.degrade_adc(),
+            p.PA7.degrade_adc(),
+        ],
+    };
+    let hal = BoardHal::new(pins, detector);
+
+    // The controller (~20 KiB). `Device::new()` is const and all-zero, so this static lands in .bss
+    // (zeroed by the runtime, no flash image, no copy through the stack); `StaticCell::init_with`
+    // built it on the stack first (a 25 KiB frame at boot). Check `data` in `arm-none-eabi-size`
+    // stays small if `Device::new` ever changes.
+    static DEVICE: ConstStaticCell<Device> = ConstStaticCell::new(Device::new());
+    let device = DEVICE.take();
 
     // USB OTG FS on PA12 (D+) / PA11 (D-). VBUS sensing (PA9) stays off: the board is bus-powered
     // today; a self-powered build must wire PA9 and enable it (USB spec).
@@ -107,11 +172,13 @@ async fn main(spawner: Spawner) {
         &mut [], // no MS OS descriptors
         CONTROL_BUF.init([0; 64]),
     );
-    let class = CdcAcmClass::new(&mut builder, CDC_STATE.init(State::new()), USB_PACKET);
+    let class = CdcAcmClass::new(&mut builder, CDC_STATE.init(State::new()), USB_PACKET as u16);
+    let (sender, receiver) = class.split();
     let usb = builder.build();
 
     spawner.spawn(usb_task(usb).expect("spawn usb_task"));
-    spawner.spawn(host_link(class, light_step).expect("spawn host_link"));
+    spawner.spawn(usb_tx_task(sender).expect("spawn usb_tx_task"));
+    spawner.spawn(controller_task(device, hal, receiver).expect("spawn controller_task"));
     spawner.spawn(blink(led).expect("spawn blink"));
 }
 
@@ -128,82 +195,214 @@ async fn blink(mut led: Output<'static>) -> ! {
     }
 }
 
-/// Reads USB packets and feeds every byte to the frame decoder; one light STEP pulse per good frame.
+/// TX pipe -> USB, one packet at a time. A full 64-byte packet with nothing behind it is followed
+/// by a zero-length packet so the host's read completes instead of waiting for more.
 #[embassy_executor::task]
-async fn host_link(mut class: CdcAcmClass<'static, UsbDriver>, mut step: Output<'static>) -> ! {
-    let mut decoder = FrameDecoder::new();
-    let mut packet = [0u8; USB_PACKET as usize];
+async fn usb_tx_task(mut sender: Sender<'static, UsbDriver>) -> ! {
+    let mut packet = [0u8; USB_PACKET];
     loop {
-        class.wait_connection().await;
-        info!("host connected");
-        // A partial frame from the previous session must not prefix the next one.
-        decoder.reset();
+        sender.wait_connection().await;
         loop {
-            let n = match class.read_packet(&mut packet).await {
-                Ok(n) => n,
-                Err(EndpointError::Disabled) => break,
-                // Cannot happen with a buffer of the endpoint's size; drop the packet if it does.
-                Err(EndpointError::BufferOverflow) => {
-                    warn!("USB packet larger than {=u16} bytes dropped", USB_PACKET);
-                    continue;
-                }
-            };
-            for &byte in packet.get(..n).unwrap_or(&[]) {
-                match decoder.push::<HostMsg>(byte) {
-                    None => {}
-                    Some(Ok(Frame { seq, msg })) => {
-                        info!("host frame seq={=u16} {=str}", seq, host_msg_name(&msg));
-                        pulse(&mut step);
-                    }
-                    Some(Err(e)) => {
-                        let stats = decoder.stats();
-                        warn!(
-                            "bad frame dropped: {=str} (ok {=u32}, bad {=u32})",
-                            frame_error_name(e),
-                            stats.ok,
-                            stats.bad()
-                        );
-                    }
-                }
+            let n = TX_PIPE.read(&mut packet).await;
+            let Some(bytes) = packet.get(..n) else { continue };
+            if sender.write_packet(bytes).await.is_err() {
+                break;
+            }
+            if n == USB_PACKET && TX_PIPE.is_empty() && sender.write_packet(&[]).await.is_err() {
+                break;
             }
         }
-        info!("host disconnected");
+        // Bytes still in the pipe go to the next host session (old replies its decoder and sequence
+        // checks discard); only the packet that failed at the disconnect is lost, a truncated frame
+        // the host's decoder drops.
     }
 }
 
-/// One STEP pulse. Busy-waits a few microseconds: shorter than any await would be.
-fn pulse(step: &mut Output<'static>) {
-    step.set_high();
-    cortex_m::asm::delay(STEP_PULSE_CYCLES);
-    step.set_low();
+/// What the USB side of the controller loop saw.
+enum RxEvent {
+    Connected,
+    Data(usize),
+    Disconnected,
+    Overflow,
 }
 
-/// The variant's name, for defmt (the shared crate stays free of defmt; `Debug2Format` would pull
-/// `core::fmt` into flash).
-fn host_msg_name(msg: &HostMsg) -> &'static str {
-    match msg {
-        HostMsg::Hello(_) => "Hello",
-        HostMsg::Configure(_) => "Configure",
-        HostMsg::Plan(_) => "Plan",
-        HostMsg::PlanEnd { .. } => "PlanEnd",
-        HostMsg::Home => "Home",
-        HostMsg::Start => "Start",
-        HostMsg::Pause => "Pause",
-        HostMsg::Resume => "Resume",
-        HostMsg::Abort => "Abort",
-        HostMsg::GetStatus => "GetStatus",
-        HostMsg::AckMeasurements { .. } => "AckMeasurements",
-        HostMsg::ResendMeasurements { .. } => "ResendMeasurements",
+async fn usb_rx(receiver: &mut Receiver<'static, UsbDriver>, buf: &mut [u8], connected: bool) -> RxEvent {
+    if !connected {
+        receiver.wait_connection().await;
+        return RxEvent::Connected;
+    }
+    match receiver.read_packet(buf).await {
+        Ok(n) => RxEvent::Data(n),
+        Err(EndpointError::Disabled) => RxEvent::Disconnected,
+        Err(EndpointError::BufferOverflow) => RxEvent::Overflow,
     }
 }
 
-fn frame_error_name(e: FrameError) -> &'static str {
-    match e {
-        FrameError::Crc => "CRC mismatch",
-        FrameError::Cobs => "invalid COBS",
-        FrameError::TooLong => "too long",
-        FrameError::TooShort => "too short",
-        FrameError::Payload => "payload is not a HostMsg",
-        FrameError::Encode => "encode",
+/// Bytes on their way from the controller's outbox to the TX pipe.
+struct Staged {
+    buf: [u8; USB_PACKET],
+    start: usize,
+    end: usize,
+}
+
+impl Staged {
+    fn pending(&self) -> &[u8] {
+        self.buf.get(self.start..self.end).unwrap_or(&[])
+    }
+
+    fn consume(&mut self, n: usize) {
+        self.start = self.start.saturating_add(n).min(self.end);
+    }
+
+    /// Move as much of the outbox into the TX pipe as it takes without waiting.
+    fn pump(&mut self, device: &mut Device) {
+        loop {
+            if self.pending().is_empty() {
+                self.start = 0;
+                self.end = device.drain_outbox(&mut self.buf);
+                if self.end == 0 {
+                    return;
+                }
+            }
+            match TX_PIPE.try_write(self.pending()) {
+                Ok(n) => self.consume(n),
+                Err(_) => return, // full: `usb_tx_task` makes room
+            }
+        }
+    }
+}
+
+/// Owns the `Device` and the HAL; the loop of the host test bench, with real time.
+#[embassy_executor::task]
+async fn controller_task(
+    device: &'static mut Device,
+    mut hal: BoardHal,
+    mut receiver: Receiver<'static, UsbDriver>,
+) -> ! {
+    let mut rx = [0u8; USB_PACKET];
+    let (mut rx_start, mut rx_end) = (0usize, 0usize);
+    let mut staged = Staged {
+        buf: [0; USB_PACKET],
+        start: 0,
+        end: 0,
+    };
+    let mut connected = false;
+    let mut seen = Seen::new(device);
+    loop {
+        // Received bytes first: `receive` takes fewer than offered only while the outbox is too full
+        // to answer, and the rest is offered again once the pipe has taken some of it.
+        if let Some(bytes) = rx.get(rx_start..rx_end).filter(|b| !b.is_empty()) {
+            let n = device.receive(&mut hal, bytes);
+            rx_start = rx_start.saturating_add(n);
+            device.poll(&mut hal);
+        }
+        if device.next_deadline_us().is_some_and(|t| t <= hal.now_us()) {
+            device.poll(&mut hal);
+        }
+        seen.log_changes(device);
+        staged.pump(device);
+
+        let rx_idle = rx_start >= rx_end;
+        if !rx_idle && staged.pending().is_empty() {
+            // `receive` stopped on a full outbox, and the pump has since emptied it: offer the rest
+            // again right away (waiting here would wait for nothing).
+            yield_now().await;
+            continue;
+        }
+        let deadline = device.next_deadline_us().map_or(Instant::MAX, Instant::from_micros);
+        let event = select3(
+            async {
+                if rx_idle {
+                    usb_rx(&mut receiver, &mut rx, connected).await
+                } else {
+                    core::future::pending().await
+                }
+            },
+            Timer::at(deadline),
+            async {
+                if staged.pending().is_empty() {
+                    core::future::pending().await
+                } else {
+                    TX_PIPE.write(staged.pending()).await
+                }
+            },
+        )
+        .await;
+        match event {
+            Either3::First(RxEvent::Data(n)) => (rx_start, rx_end) = (0, n.min(USB_PACKET)),
+            Either3::First(RxEvent::Connected) => {
+                connected = true;
+                device.reset_link_decoder();
+                info!("USB host connected");
+            }
+            Either3::First(RxEvent::Disconnected) => {
+                connected = false;
+                (rx_start, rx_end) = (0, 0);
+                info!("USB host disconnected");
+            }
+            // Cannot happen with a buffer of the endpoint's size; the packet is lost and the link
+            // NAKs the damaged frame.
+            Either3::First(RxEvent::Overflow) => warn!("USB packet larger than {=usize} bytes dropped", USB_PACKET),
+            // Due work runs at the top of the loop. Let the other tasks run first: a deadline already
+            // in the past resolves without the executor ever getting control back.
+            Either3::Second(()) => yield_now().await,
+            Either3::Third(n) => staged.consume(n),
+        }
+    }
+}
+
+/// Controller state and fault as last logged, so only changes go to defmt.
+struct Seen {
+    state: ControllerState,
+    fault: Option<Fault>,
+}
+
+impl Seen {
+    fn new(device: &Device) -> Self {
+        Self {
+            state: device.controller().state(),
+            fault: device.controller().last_fault(),
+        }
+    }
+
+    fn log_changes(&mut self, device: &Device) {
+        let state = device.controller().state();
+        if state != self.state {
+            info!("state {=str} -> {=str}", state_name(self.state), state_name(state));
+            self.state = state;
+        }
+        let fault = device.controller().last_fault();
+        if fault != self.fault {
+            if let Some(f) = fault {
+                warn!("fault: {=str}", fault_name(f));
+            }
+            self.fault = fault;
+        }
+    }
+}
+
+/// Names for defmt (the shared crate stays free of defmt; `Debug2Format` would pull `core::fmt`
+/// into flash).
+fn state_name(s: ControllerState) -> &'static str {
+    match s {
+        ControllerState::Idle => "Idle",
+        ControllerState::Homing => "Homing",
+        ControllerState::Ready => "Ready",
+        ControllerState::Running => "Running",
+        ControllerState::Paused => "Paused",
+        ControllerState::Done => "Done",
+        ControllerState::Fault => "Fault",
+    }
+}
+
+fn fault_name(f: Fault) -> &'static str {
+    match f {
+        Fault::LimitSwitch(_) => "limit switch",
+        Fault::Unreachable { .. } => "unreachable direction",
+        Fault::BufferOverflow => "buffer overflow",
+        Fault::BadFrame => "too many bad frames",
+        Fault::NotHomed => "not homed",
+        Fault::DetectorTimeout => "detector timeout",
+        Fault::HomeNotFound(_) => "home not found",
     }
 }
