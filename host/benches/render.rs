@@ -5,12 +5,9 @@
 
 use criterion::{BenchmarkId, Criterion, Throughput};
 use glam::DVec3;
-use gonio::brdf::parse_material;
-use gonio::render::brdf_sampling::BrdfSampler;
 use gonio::render::effects::EffectsConfig;
 use gonio::render::envmap::EnvMap;
-use gonio::render::geometry::{Camera, Projection, Shape};
-use gonio::render::scene::{DeltaLight, RenderSettings, Scene};
+use gonio::render::scene::{DeltaLight, Scene};
 use gonio::render::sky::{sky, SkyParams};
 use gonio::render::{render, render_plain};
 use std::hint::black_box;
@@ -27,24 +24,11 @@ fn scene(size: usize, env: Option<EnvMap>, spp: u32) -> Scene {
     } else {
         Vec::new()
     };
-    Scene {
-        camera: Camera {
-            width: size,
-            height: size,
-            projection: Projection::Orthographic,
-        },
-        shape: Shape::Sphere,
-        material_spec: SPEC.into(),
-        material: parse_material(SPEC).expect("valid spec"),
-        sampler: BrdfSampler::for_spec(SPEC),
-        lights,
-        environment: env,
-        settings: RenderSettings {
-            spp,
-            ..RenderSettings::default()
-        },
-        effects: None,
-    }
+    let mut s = Scene::orthographic_sphere(SPEC, size).expect("valid spec");
+    s.lights = lights;
+    s.environment = env;
+    s.settings.spp = spp;
+    s
 }
 
 fn sky_env() -> EnvMap {

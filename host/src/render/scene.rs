@@ -197,6 +197,27 @@ pub struct Scene {
 const MAX_SIDE: usize = 16_384;
 
 impl Scene {
+    /// A unit sphere of `spec` seen by a `size` x `size` orthographic camera, with no lights, default
+    /// settings and no effects: the starting point of scenes built in code (tests, benches, the
+    /// virtual gonio) rather than read from a file.
+    pub fn orthographic_sphere(spec: &str, size: usize) -> Result<Self, crate::brdf::BrdfError> {
+        Ok(Self {
+            camera: Camera {
+                width: size,
+                height: size,
+                projection: Projection::Orthographic,
+            },
+            shape: Shape::Sphere,
+            material_spec: spec.to_string(),
+            material: parse_material(spec)?,
+            sampler: BrdfSampler::for_spec(spec),
+            lights: Vec::new(),
+            environment: None,
+            settings: RenderSettings::default(),
+            effects: None,
+        })
+    }
+
     /// Load a scene file; relative paths inside it (the environment map) are relative to its folder.
     pub fn load(path: &Path) -> Result<Self, RenderError> {
         let text = std::fs::read_to_string(path).map_err(|e| RenderError::scene(path, e.to_string()))?;

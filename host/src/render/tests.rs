@@ -3,35 +3,17 @@
 
 use super::effects::{EffectsConfig, ReadNoiseConfig};
 use super::envmap::EnvMap;
-use super::geometry::{Camera, Projection, Shape};
-use super::scene::{DeltaLight, RenderSettings, Scene};
+use super::scene::{DeltaLight, Scene};
 use super::{render, render_plain, Image};
 use crate::brdf::frame::from_spherical;
-use crate::brdf::parse_material;
-use crate::render::brdf_sampling::BrdfSampler;
 use glam::DVec3;
 use std::f64::consts::PI;
 use std::path::Path;
 
 fn scene(spec: &str, size: usize) -> Scene {
-    Scene {
-        camera: Camera {
-            width: size,
-            height: size,
-            projection: Projection::Orthographic,
-        },
-        shape: Shape::Sphere,
-        material_spec: spec.to_string(),
-        material: parse_material(spec).unwrap_or_else(|e| panic!("{e}")),
-        sampler: BrdfSampler::for_spec(spec),
-        lights: Vec::new(),
-        environment: None,
-        settings: RenderSettings {
-            pixel_samples: 1,
-            ..RenderSettings::default()
-        },
-        effects: None,
-    }
+    let mut s = Scene::orthographic_sphere(spec, size).unwrap_or_else(|e| panic!("{e}"));
+    s.settings.pixel_samples = 1;
+    s
 }
 
 /// The sphere point seen at the centre of pixel (x, y) of an orthographic size x size image, if any.

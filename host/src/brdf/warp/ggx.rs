@@ -2,39 +2,31 @@
 //! visible normals D_wi(m) = D(m) max(0, wi.m) / sigma(wi) (Heitz 2018, "Sampling the GGX
 //! Distribution of Visible Normals"), each followed by wo = 2 (wi.m) m - wi, with exact inverses.
 
-use super::{incident_ok, mirror_direction, normal_between, reflect_above, reflected_pdf, Warp};
+use super::{normal_between, reflect_above, reflected_pdf, IncidentLobe, Warp};
 use crate::brdf::frame::{clamp_u, phi_of, wrap_unit, ONE_MINUS_EPSILON};
 use crate::brdf::microfacet::{ndf, projected_area};
-use crate::brdf::roughness::Roughness;
 use glam::{DVec2, DVec3};
 use std::f64::consts::PI;
 
 /// Normal sampling: tan^2 theta_m = alpha^2 u1 / (1 - u1), phi_m = 2 pi u2; pdf(m) = D(m) cos theta_m.
 #[derive(Clone, Debug)]
 pub struct GgxNdf {
-    wi: DVec3,
-    roughness: Roughness,
-    usable: bool,
+    lobe: IncidentLobe,
 }
 
 impl GgxNdf {
     pub fn new(wi: DVec3, alpha: f64) -> Self {
         Self {
-            wi,
-            roughness: Roughness::new(alpha),
-            usable: incident_ok(wi),
+            lobe: IncidentLobe::new(wi, alpha),
         }
     }
 }
 
 impl Warp for GgxNdf {
     fn sample(&self, u: DVec2) -> Option<DVec3> {
-        if !self.usable {
-            return None;
-        }
-        let alpha = match self.roughness {
-            Roughness::Mirror => return mirror_direction(self.wi),
-            Roughness::Rough(a) => a,
+        let alpha = match self.lobe.sampling_alpha() {
+            Ok(a) => a,
+            Err(answer) => return answer,
         };
         let u = clamp_u(u);
         // 1 - u1 >= eps after the clamp: tan^2 is finite.
@@ -42,17 +34,12 @@ impl Warp for GgxNdf {
         let cos = 1.0 / (1.0 + tan2).sqrt();
         let sin = (tan2 / (1.0 + tan2)).sqrt();
         let (sp, cp) = (2.0 * PI * u.y).sin_cos();
-        reflect_above(self.wi, DVec3::new(sin * cp, sin * sp, cos))
+        reflect_above(self.lobe.wi, DVec3::new(sin * cp, sin * sp, cos))
     }
 
     fn invert(&self, wo: DVec3) -> Option<DVec2> {
-        let Roughness::Rough(alpha) = self.roughness else {
-            return None;
-        };
-        if !self.usable {
-            return None;
-        }
-        let m = normal_between(self.wi, wo)?;
+        let alpha = self.lobe.density_alpha()?;
+        let m = normal_between(self.lobe.wi, wo)?;
         // u1 = tan^2 / (alpha^2 + tan^2) = sin^2 / (alpha^2 cos^2 + sin^2): no tan, no division by 0.
         let s2 = m.x * m.x + m.y * m.y;
         let u1 = (s2 / (alpha * alpha * m.z * m.z + s2)).min(ONE_MINUS_EPSILON);
@@ -60,20 +47,17 @@ impl Warp for GgxNdf {
     }
 
     fn pdf(&self, wo: DVec3) -> f64 {
-        let Roughness::Rough(alpha) = self.roughness else {
+        let Some(alpha) = self.lobe.density_alpha() else {
             return 0.0;
         };
-        if !self.usable {
-            return 0.0;
-        }
-        match normal_between(self.wi, wo) {
+        match normal_between(self.lobe.wi, wo) {
             Some(m) => reflected_pdf(ndf(m, alpha) * m.z, wo, m),
             None => 0.0,
         }
     }
 
     fn is_delta(&self) -> bool {
-        self.roughness == Roughness::Mirror
+        self.lobe.is_delta()
     }
 }
 
@@ -82,9 +66,7 @@ impl Warp for GgxNdf {
 /// t2 <- (1 - s) sqrt(1 - t1^2) + s t2 with s = (1 + v.z) / 2, lifted to the hemisphere and unstretched.
 #[derive(Clone, Debug)]
 pub struct GgxVndf {
-    wi: DVec3,
-    roughness: Roughness,
-    usable: bool,
+    lobe: IncidentLobe,
     /// wi in the stretched (alpha = 1) configuration, and an orthonormal frame (t1, t2, v) around it.
     v: DVec3,
     t1: DVec3,
@@ -95,12 +77,10 @@ pub struct GgxVndf {
 
 impl GgxVndf {
     pub fn new(wi: DVec3, alpha: f64) -> Self {
-        let roughness = Roughness::new(alpha);
-        let a = match roughness {
-            Roughness::Rough(a) => a,
-            Roughness::Mirror => 1.0,
-        };
-        let usable = incident_ok(wi);
+        let lobe = IncidentLobe::new(wi, alpha);
+        // The stretch needs some alpha even in the mirror limit, where it is never used.
+        let a = lobe.density_alpha().unwrap_or(1.0);
+        let usable = lobe.usable;
         let stretched = DVec3::new(a * wi.x, a * wi.y, wi.z);
         let v = if usable && stretched.length_squared() > 0.0 {
             stretched.normalize()
@@ -116,32 +96,20 @@ impl GgxVndf {
         };
         let t2 = v.cross(t1);
         Self {
-            wi,
-            roughness,
-            usable,
+            lobe,
             v,
             t1,
             t2,
             s: 0.5 * (1.0 + v.z),
         }
     }
-
-    fn alpha(&self) -> Option<f64> {
-        match self.roughness {
-            Roughness::Rough(a) if self.usable => Some(a),
-            _ => None,
-        }
-    }
 }
 
 impl Warp for GgxVndf {
     fn sample(&self, u: DVec2) -> Option<DVec3> {
-        if !self.usable {
-            return None;
-        }
-        let alpha = match self.roughness {
-            Roughness::Mirror => return mirror_direction(self.wi),
-            Roughness::Rough(a) => a,
+        let alpha = match self.lobe.sampling_alpha() {
+            Ok(a) => a,
+            Err(answer) => return answer,
         };
         let u = clamp_u(u);
         let r = u.x.sqrt();
@@ -156,12 +124,12 @@ impl Warp for GgxVndf {
         if !(len > 0.0) {
             return None;
         }
-        reflect_above(self.wi, m / len)
+        reflect_above(self.lobe.wi, m / len)
     }
 
     fn invert(&self, wo: DVec3) -> Option<DVec2> {
-        let alpha = self.alpha()?;
-        let m = normal_between(self.wi, wo)?;
+        let alpha = self.lobe.density_alpha()?;
+        let m = normal_between(self.lobe.wi, wo)?;
         let nh = DVec3::new(m.x / alpha, m.y / alpha, m.z).normalize();
         // Only normals that wi sees are in the image of the warp.
         if !(nh.dot(self.v) >= 0.0) {
@@ -175,13 +143,13 @@ impl Warp for GgxVndf {
     }
 
     fn pdf(&self, wo: DVec3) -> f64 {
-        let Some(alpha) = self.alpha() else {
+        let Some(alpha) = self.lobe.density_alpha() else {
             return 0.0;
         };
-        match normal_between(self.wi, wo) {
+        match normal_between(self.lobe.wi, wo) {
             // D_wi(m) = D(m) max(0, wi.m) / sigma(wi); sigma >= alpha/2 > 0, even at grazing wi.
             Some(m) => {
-                let visible = ndf(m, alpha) * self.wi.dot(m).max(0.0) / projected_area(self.wi, alpha);
+                let visible = ndf(m, alpha) * self.lobe.wi.dot(m).max(0.0) / projected_area(self.lobe.wi, alpha);
                 reflected_pdf(visible, wo, m)
             }
             None => 0.0,
@@ -189,6 +157,6 @@ impl Warp for GgxVndf {
     }
 
     fn is_delta(&self) -> bool {
-        self.roughness == Roughness::Mirror
+        self.lobe.is_delta()
     }
 }

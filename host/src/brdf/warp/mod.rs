@@ -17,6 +17,7 @@ pub use ggx::{GgxNdf, GgxVndf};
 pub use ward::{ward_half_vector_pdf, WardHalfVector};
 
 use super::frame::{half_vector, reflect, MIN_HALF_LENGTH};
+use super::roughness::Roughness;
 use super::BrdfError;
 use glam::{DVec2, DVec3};
 use std::fmt;
@@ -33,6 +34,51 @@ pub trait Warp {
     /// True for the mirror limit, where all of `sample` goes to one direction and `pdf` is 0.
     fn is_delta(&self) -> bool {
         false
+    }
+}
+
+/// What every half-vector warp starts from: the incident direction and the lobe's roughness, with
+/// the two guards they all share, written once. A wi the warp cannot use (`incident_ok`) samples
+/// nothing; a lobe in the mirror limit samples the mirror direction and has no density or inverse.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct IncidentLobe {
+    pub wi: DVec3,
+    pub roughness: Roughness,
+    pub usable: bool,
+}
+
+impl IncidentLobe {
+    pub fn new(wi: DVec3, alpha: f64) -> Self {
+        Self {
+            wi,
+            roughness: Roughness::new(alpha),
+            usable: incident_ok(wi),
+        }
+    }
+
+    /// For `sample`: the rough alpha, or else the whole answer (`None` for an unusable wi, the
+    /// mirror direction in the mirror limit).
+    pub fn sampling_alpha(&self) -> Result<f64, Option<DVec3>> {
+        if !self.usable {
+            return Err(None);
+        }
+        match self.roughness {
+            Roughness::Mirror => Err(mirror_direction(self.wi)),
+            Roughness::Rough(a) => Ok(a),
+        }
+    }
+
+    /// For `invert` and `pdf`: the rough alpha, `None` where there is no density (an unusable wi
+    /// or the mirror limit).
+    pub fn density_alpha(&self) -> Option<f64> {
+        match self.roughness {
+            Roughness::Rough(a) if self.usable => Some(a),
+            _ => None,
+        }
+    }
+
+    pub fn is_delta(&self) -> bool {
+        self.roughness == Roughness::Mirror
     }
 }
 

@@ -2,9 +2,9 @@
 //! theta_h = atan(alpha sqrt(-ln u1)), phi_h = 2 pi u2;  u1 = exp(-tan^2 theta_h / alpha^2), u2 = phi_h / 2 pi;
 //! then wo = 2 (h.wi) h - wi. The half-vector density is p(h) = exp(-tan^2 / alpha^2) / (pi alpha^2 cos^3 theta_h).
 
-use super::{incident_ok, mirror_direction, normal_between, reflect_above, reflected_pdf, Warp};
+use super::{normal_between, reflect_above, reflected_pdf, IncidentLobe, Warp};
 use crate::brdf::frame::{clamp_u, phi_of, wrap_unit, ONE_MINUS_EPSILON};
-use crate::brdf::roughness::{floored, Roughness};
+use crate::brdf::roughness::floored;
 use glam::{DVec2, DVec3};
 use std::f64::consts::PI;
 
@@ -27,29 +27,22 @@ pub fn ward_half_vector_pdf(h: DVec3, alpha: f64) -> f64 {
 
 #[derive(Clone, Debug)]
 pub struct WardHalfVector {
-    wi: DVec3,
-    roughness: Roughness,
-    usable: bool,
+    lobe: IncidentLobe,
 }
 
 impl WardHalfVector {
     pub fn new(wi: DVec3, alpha: f64) -> Self {
         Self {
-            wi,
-            roughness: Roughness::new(alpha),
-            usable: incident_ok(wi),
+            lobe: IncidentLobe::new(wi, alpha),
         }
     }
 }
 
 impl Warp for WardHalfVector {
     fn sample(&self, u: DVec2) -> Option<DVec3> {
-        if !self.usable {
-            return None;
-        }
-        let alpha = match self.roughness {
-            Roughness::Mirror => return mirror_direction(self.wi),
-            Roughness::Rough(a) => a,
+        let alpha = match self.lobe.sampling_alpha() {
+            Ok(a) => a,
+            Err(answer) => return answer,
         };
         let u = clamp_u(u);
         // Eq. 7. u1 = 0 gives tan theta_h = inf, a normal on the horizon, whose reflection is never
@@ -61,17 +54,12 @@ impl Warp for WardHalfVector {
         let cos = 1.0 / (1.0 + tan * tan).sqrt();
         let sin = tan * cos;
         let (sp, cp) = (2.0 * PI * u.y).sin_cos();
-        reflect_above(self.wi, DVec3::new(sin * cp, sin * sp, cos))
+        reflect_above(self.lobe.wi, DVec3::new(sin * cp, sin * sp, cos))
     }
 
     fn invert(&self, wo: DVec3) -> Option<DVec2> {
-        let Roughness::Rough(alpha) = self.roughness else {
-            return None;
-        };
-        if !self.usable {
-            return None;
-        }
-        let h = normal_between(self.wi, wo)?;
+        let alpha = self.lobe.density_alpha()?;
+        let h = normal_between(self.lobe.wi, wo)?;
         // Eq. 8, with tan^2 from x, y, z directly (no acos near the pole).
         let tan2 = (h.x * h.x + h.y * h.y) / (h.z * h.z);
         let u1 = (-tan2 / (alpha * alpha)).exp().min(ONE_MINUS_EPSILON);
@@ -85,19 +73,16 @@ impl Warp for WardHalfVector {
     }
 
     fn pdf(&self, wo: DVec3) -> f64 {
-        let Roughness::Rough(alpha) = self.roughness else {
+        let Some(alpha) = self.lobe.density_alpha() else {
             return 0.0;
         };
-        if !self.usable {
-            return 0.0;
-        }
-        match normal_between(self.wi, wo) {
+        match normal_between(self.lobe.wi, wo) {
             Some(h) => reflected_pdf(ward_half_vector_pdf(h, alpha), wo, h),
             None => 0.0,
         }
     }
 
     fn is_delta(&self) -> bool {
-        self.roughness == Roughness::Mirror
+        self.lobe.is_delta()
     }
 }
