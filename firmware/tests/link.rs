@@ -6,15 +6,9 @@ mod common;
 use common::*;
 use gonio_shared::msg::{ControllerState, DeviceMsg, Hello, HostMsg, NakReason};
 use proptest::prelude::*;
-use proptest::test_runner::{Config, RngSeed};
 
-fn fixed(cases: u32) -> Config {
-    Config {
-        cases,
-        rng_seed: RngSeed::Fixed(0x11_4c),
-        failure_persistence: None,
-        ..Config::default()
-    }
+fn fixed(cases: u32) -> proptest::test_runner::Config {
+    common::fixed_seed_config(cases, 0x11_4c)
 }
 
 fn naks(msgs: &[DeviceMsg]) -> Vec<(u16, NakReason)> {

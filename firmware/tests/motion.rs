@@ -19,18 +19,12 @@ use gonio_shared::instrument::{InstrumentConfig, AXES};
 use gonio_shared::msg::{ControllerState, DeviceMsg, Direction, HostMsg};
 use gonio_shared::Axis;
 use proptest::prelude::*;
-use proptest::test_runner::{Config, RngSeed};
 
 const INTERVAL_SLACK_US: f64 = 2.0;
 const ACCEL_REL_TOL: f64 = 0.01;
 
-fn fixed(cases: u32) -> Config {
-    Config {
-        cases,
-        rng_seed: RngSeed::Fixed(0x60_1110),
-        failure_persistence: None,
-        ..Config::default()
-    }
+fn fixed(cases: u32) -> proptest::test_runner::Config {
+    common::fixed_seed_config(cases, 0x60_1110)
 }
 
 /// Run one move on a bare stepper from `start` to `target`; the recorded steps.

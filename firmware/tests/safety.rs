@@ -12,15 +12,9 @@ use gonio_shared::msg::{
 };
 use gonio_shared::Axis;
 use proptest::prelude::*;
-use proptest::test_runner::{Config, RngSeed};
 
-fn fixed(cases: u32) -> Config {
-    Config {
-        cases,
-        rng_seed: RngSeed::Fixed(0x5AFE),
-        failure_persistence: None,
-        ..Config::default()
-    }
+fn fixed(cases: u32) -> proptest::test_runner::Config {
+    common::fixed_seed_config(cases, 0x5AFE)
 }
 
 fn refused(msgs: &[DeviceMsg]) -> Option<(Command, RefuseReason)> {

@@ -348,3 +348,13 @@ pub fn separation_ok(cfg: &InstrumentConfig<f32>, pos: &[i64; 4]) -> bool {
     let b = cfg.blocking_angle as f64;
     sep >= b - 1e-6 && sep <= std::f64::consts::TAU - b + 1e-6
 }
+
+/// A proptest configuration with a fixed seed (reproducible in CI) and no regression files.
+pub fn fixed_seed_config(cases: u32, seed: u64) -> proptest::test_runner::Config {
+    proptest::test_runner::Config {
+        cases,
+        rng_seed: proptest::test_runner::RngSeed::Fixed(seed),
+        failure_persistence: None,
+        ..proptest::test_runner::Config::default()
+    }
+}
