@@ -401,7 +401,6 @@ fn fault_name(f: Fault) -> &'static str {
         Fault::Unreachable { .. } => "unreachable direction",
         Fault::BufferOverflow => "buffer overflow",
         Fault::BadFrame => "too many bad frames",
-        Fault::NotHomed => "not homed",
         Fault::DetectorTimeout => "detector timeout",
         Fault::HomeNotFound(_) => "home not found",
     }
