@@ -204,7 +204,8 @@ impl Controller {
                 _ => 0,
             };
         }
-        let active = self.stepper.is_moving() || matches!(self.state, ControllerState::Running | ControllerState::Paused);
+        let active =
+            self.stepper.is_moving() || matches!(self.state, ControllerState::Running | ControllerState::Paused);
         if !active {
             return 0;
         }
@@ -223,7 +224,10 @@ impl Controller {
         }
         let already = matches!(self.last_fault(), Some(Fault::LimitSwitch(_) | Fault::HomeNotFound(_)))
             && self.state == ControllerState::Fault;
-        !already && AXES.iter().any(|&a| !cfg.axis(a).continuous && closed & (1 << a.index()) != 0)
+        !already
+            && AXES
+                .iter()
+                .any(|&a| !cfg.axis(a).continuous && closed & (1 << a.index()) != 0)
     }
 
     /// The board stopped every axis on these switches (see [`Controller::halts_on`]).

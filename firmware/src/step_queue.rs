@@ -118,6 +118,9 @@ pub struct QueueStats {
     pub overruns: u32,
     /// Events held back to keep the pulse shape.
     pub stretched: u32,
+    /// STEP edges later than their due tick (the loop fell behind, or a stretch). A DIR change
+    /// waiting for a pulse to end (a park move right after a home switch) is not counted.
+    pub late: u32,
 }
 
 impl Default for StepQueue {
@@ -141,6 +144,7 @@ impl StepQueue {
                 flushed: 0,
                 overruns: 0,
                 stretched: 0,
+                late: 0,
             },
         }
     }
@@ -215,7 +219,9 @@ impl StepQueue {
     /// When the timer must call [`StepQueue::service`] next (`now` orders instants across a wrap):
     /// the end of a pulse in progress or the next event, whichever is first; `None` when idle.
     pub fn next_wake(&self, now: u32) -> Option<u32> {
-        let mut wake = self.events.front().map(|e| self.ready_at(e, now));
+        // Held events (a trip not yet taken) wake nothing: the interrupt would only spin on them.
+        let head = self.events.front().filter(|_| self.tripped == 0);
+        let mut wake = head.map(|e| self.ready_at(e, now));
         for (i, &rose) in self.rose.iter().enumerate() {
             if self.high & (1 << i) != 0 {
                 let end = rose.wrapping_add(PULSE_TICKS);
@@ -225,19 +231,29 @@ impl StepQueue {
         wake
     }
 
-    /// The earliest instant `e` may be applied without breaking the pulse shape (a STEP still high
-    /// is covered by `next_wake` through the pulse end). Constraints are recognised only within
-    /// their few ticks after `now`, so a timestamp that has aged past the counter's half range can
-    /// never look like a future one.
+    /// The earliest instant `e` may be applied without breaking the pulse shape: never `now` unless
+    /// `service(now)` would apply it, so the timer never spins. Constraints are recognised only
+    /// within their few ticks after `now`, so a timestamp that has aged past the counter's half
+    /// range can never look like a future one.
     fn ready_at(&self, e: &Event, now: u32) -> u32 {
         if !reached(e.due, now) {
             return e.due;
         }
         let i = e.axis.index();
+        if self.high & bit(e.axis) != 0 {
+            // Its pulse ends first (a STEP or DIR change never cuts a pulse short).
+            let end = self.rose.get(i).map_or(now, |&r| r.wrapping_add(PULSE_TICKS));
+            if !reached(end, now) {
+                return end;
+            }
+        }
         let mut t = now;
         if e.what == What::Step {
             let low = self.fell.get(i).map(|&f| (f.wrapping_add(LOW_TICKS), LOW_TICKS));
-            let dir = self.dir_changed.get(i).map(|&d| (d.wrapping_add(DIR_SETUP_TICKS), DIR_SETUP_TICKS));
+            let dir = self
+                .dir_changed
+                .get(i)
+                .map(|&d| (d.wrapping_add(DIR_SETUP_TICKS), DIR_SETUP_TICKS));
             for (c, window) in [low, dir].into_iter().flatten() {
                 let ahead = c.wrapping_sub(now);
                 if ahead != 0 && ahead <= window && ahead > t.wrapping_sub(now) {
@@ -254,7 +270,12 @@ impl StepQueue {
         let mut pins = Pins::default();
         for i in 0..AXIS_COUNT {
             let b = 1u8 << i;
-            if self.high & b != 0 && self.rose.get(i).is_some_and(|&r| reached(r.wrapping_add(PULSE_TICKS), now)) {
+            if self.high & b != 0
+                && self
+                    .rose
+                    .get(i)
+                    .is_some_and(|&r| reached(r.wrapping_add(PULSE_TICKS), now))
+            {
                 self.high &= !b;
                 pins.step_low |= b;
                 if let Some(f) = self.fell.get_mut(i) {
@@ -272,6 +293,9 @@ impl StepQueue {
                 if self.high & b != 0 || self.ready_at(&e, now) != now {
                     self.stats.stretched = self.stats.stretched.saturating_add(1);
                     break;
+                }
+                if e.due != now && e.what == What::Step {
+                    self.stats.late = self.stats.late.saturating_add(1);
                 }
                 match e.what {
                     What::Step => {
@@ -316,7 +340,12 @@ impl StepQueue {
         let mut pins = Pins::default();
         for i in 0..AXIS_COUNT {
             let b = 1u8 << i;
-            if self.high & b != 0 && self.rose.get(i).is_some_and(|&r| reached(r.wrapping_add(PULSE_TICKS), now)) {
+            if self.high & b != 0
+                && self
+                    .rose
+                    .get(i)
+                    .is_some_and(|&r| reached(r.wrapping_add(PULSE_TICKS), now))
+            {
                 self.high &= !b;
                 pins.step_low |= b;
                 if let Some(f) = self.fell.get_mut(i) {
@@ -434,6 +463,32 @@ mod tests {
         assert_eq!(q.tripped(), 0);
         assert_eq!(q.service(200).0.step_high, bit(Axis::Light));
         assert_eq!(q.stats().steps, 2);
+    }
+
+    /// Whenever `next_wake` says "now", `service(now)` changes a pin: the timer never spins.
+    #[test]
+    fn a_wake_up_always_makes_progress() {
+        let mut q = StepQueue::new();
+        q.set_armed(bit(Axis::Light));
+        q.push_step(Axis::Light, 10).unwrap();
+        q.push_dir(Axis::Light, false, 11).unwrap();
+        q.push_step(Axis::Light, 11).unwrap();
+        q.push_step(Axis::Tilt, 12).unwrap();
+        let mut now = 10;
+        for _ in 0..100 {
+            let (pins, wake) = q.service(now);
+            let Some(w) = wake else { break };
+            if w == now {
+                assert!(!pins.is_empty() || q.service(now).0 != Pins::default(), "spin at {now}");
+            }
+            now = if reached(w, now) { now + 1 } else { w };
+        }
+        assert!(q.is_empty());
+        // Held events after a trip wake nothing.
+        q.push_step(Axis::Light, now + 5).unwrap();
+        q.trip(bit(Axis::Light), now);
+        q.push_step(Axis::Light, now + 6).unwrap();
+        assert_eq!(q.next_wake(now + 10), None);
     }
 
     #[test]

@@ -88,7 +88,11 @@ impl<B: Board, Q: SharedQueue> QueuedHal<B, Q> {
             self.take_trip(device);
             let t = device.next_deadline_us()?;
             let moving = device.controller().is_moving();
-            let horizon = if moving { real.saturating_add(LOOKAHEAD_US) } else { real };
+            let horizon = if moving {
+                real.saturating_add(LOOKAHEAD_US)
+            } else {
+                real
+            };
             if t > horizon {
                 return Some(if moving {
                     t.saturating_sub(LOOKAHEAD_US).max(real.saturating_add(REFILL_US))
@@ -138,7 +142,9 @@ impl<B: Board, Q: SharedQueue> Hal for QueuedHal<B, Q> {
     }
 
     fn set_direction(&mut self, axis: Axis, increasing: bool) {
-        let Some(last) = self.dir.get_mut(axis.index()) else { return };
+        let Some(last) = self.dir.get_mut(axis.index()) else {
+            return;
+        };
         if *last == Some(increasing) {
             return;
         }
