@@ -100,11 +100,21 @@ pub struct CsQueue;
 impl SharedQueue for CsQueue {
     fn with<R>(&self, f: impl FnOnce(&mut StepQueue) -> R) -> R {
         STEP_QUEUE.lock(|cell| {
-            let mut q = cell.borrow_mut();
+            let mut q = queue(cell);
             let r = f(&mut q);
             arm(&q);
             r
         })
+    }
+}
+
+/// The queue, inside the critical section. Never already borrowed: every borrow is one critical
+/// section that calls nothing re-entrant. `try_borrow_mut` rather than `borrow_mut` only so the
+/// impossible case is a defmt panic, without `core::fmt` (flash).
+fn queue(cell: &RefCell<StepQueue>) -> core::cell::RefMut<'_, StepQueue> {
+    match cell.try_borrow_mut() {
+        Ok(q) => q,
+        Err(_) => defmt::panic!("step queue re-entered"),
     }
 }
 
@@ -142,7 +152,7 @@ fn TIM2() {
     // rc_w0: writing 0 clears CC1IF only.
     t.sr().write_value(pac::timer::regs::SrGp16(!(1 << 1)));
     STEP_QUEUE.lock(|cell| {
-        let mut q = cell.borrow_mut();
+        let mut q = queue(cell);
         let (pins, _) = q.service(t.cnt().read());
         apply(pins);
         arm(&q);
@@ -166,7 +176,7 @@ fn switch_closed_irq(lines: u32) {
         }
     }
     STEP_QUEUE.lock(|cell| {
-        let mut q = cell.borrow_mut();
+        let mut q = queue(cell);
         apply(q.trip(closed, pac::TIM2.cnt().read()));
         arm(&q);
     });

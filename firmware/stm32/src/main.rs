@@ -21,6 +21,7 @@ mod board;
 
 use board::{AxisPins, BoardIo, CsQueue, Detector, SYSCLK_HZ};
 use defmt::{info, warn};
+use defmt_rtt as _;
 use embassy_executor::Spawner;
 use embassy_futures::select::{select3, Either3};
 use embassy_futures::yield_now;
@@ -40,7 +41,18 @@ use gonio_firmware::timed::{QueuedHal, SharedQueue};
 use gonio_firmware::Device;
 use gonio_shared::msg::{ControllerState, Fault};
 use static_cell::{ConstStaticCell, StaticCell};
-use {defmt_rtt as _, panic_probe as _};
+
+/// Log where, then stop in a `udf` the probe reports as a HardFault. The panic *message* is not
+/// printed: formatting it would link `core::fmt` (~3 KiB of a flash budget with none to spare),
+/// and no panic can come from wire data (the logic crate's rule), only from start-up `expect`s.
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    match info.location() {
+        Some(l) => defmt::error!("panic at {=str}:{=u32}", l.file(), l.line()),
+        None => defmt::error!("panic"),
+    }
+    cortex_m::asm::udf()
+}
 
 bind_interrupts!(struct Irqs {
     OTG_FS => usb::InterruptHandler<peripherals::USB_OTG_FS>;
@@ -182,10 +194,19 @@ async fn main(spawner: Spawner) {
     let (sender, receiver) = class.split();
     let usb = builder.build();
 
-    spawner.spawn(usb_task(usb).expect("spawn usb_task"));
-    spawner.spawn(usb_tx_task(sender).expect("spawn usb_tx_task"));
-    spawner.spawn(controller_task(device, hal, receiver).expect("spawn controller_task"));
-    spawner.spawn(blink(led).expect("spawn blink"));
+    spawner.spawn(spawned(usb_task(usb), "usb_task"));
+    spawner.spawn(spawned(usb_tx_task(sender), "usb_tx_task"));
+    spawner.spawn(spawned(controller_task(device, hal, receiver), "controller_task"));
+    spawner.spawn(spawned(blink(led), "blink"));
+}
+
+/// A task's spawn token, or a logged halt at boot. Not `expect`: its `Debug` formatting of the
+/// error would link `core::fmt`.
+fn spawned<T, E>(token: Result<T, E>, name: &str) -> T {
+    match token {
+        Ok(t) => t,
+        Err(_) => defmt::panic!("cannot spawn {=str}", name),
+    }
 }
 
 #[embassy_executor::task]
