@@ -21,8 +21,9 @@
 //! Pulse shape: STEP is high for at least [`PULSE_TICKS`], low for at least [`LOW_TICKS`] before the
 //! same axis rises again, and DIR changes at least [`DIR_SETUP_TICKS`] before that axis's next rising
 //! edge and never while its STEP is high. An event that would break one of these waits (and holds
-//! the events behind it: playback is in order); such delays are counted in [`StepQueue::stretched`].
+//! the events behind it: playback is in order); a delayed step is counted in [`QueueStats::late`].
 //! At 1 MHz the shape allows up to 1 / (3 + 3) us = 166 k steps/s per axis, far above any plan.
+//! A pulse followed within [`MERGE_TICKS`] by another axis's event ends in that event's wake-up.
 
 use crate::capacity::STEP_QUEUE_EVENTS;
 use gonio_shared::instrument::AXIS_COUNT;
@@ -36,6 +37,12 @@ pub const LOW_TICKS: u32 = 3;
 /// DIR setup before the next rising STEP edge, ticks: 2 so that the setup is a full tick (1 us)
 /// even when the two edges land at opposite ends of their tick (DRV8825 650 ns, A4988 200 ns).
 pub const DIR_SETUP_TICKS: u32 = 2;
+
+/// A pulse may stay high up to this much longer than [`PULSE_TICKS`] when another axis's event
+/// follows within it, so one interrupt ends the pulse and starts the next (STEP high time has no
+/// maximum; the same axis's low time is still enforced). With 4 axes at 20 kHz events come every
+/// ~12 us on average.
+pub const MERGE_TICKS: u32 = 10;
 
 /// `t` has come (wrap-safe: `t` at most 2^31 ticks in the past).
 fn reached(t: u32, now: u32) -> bool {
@@ -116,8 +123,6 @@ pub struct QueueStats {
     pub flushed: u32,
     /// Pushes refused because the queue was full (must stay 0).
     pub overruns: u32,
-    /// Events held back to keep the pulse shape.
-    pub stretched: u32,
     /// STEP edges later than their due tick (the loop fell behind, or a stretch). A DIR change
     /// waiting for a pulse to end (a park move right after a home switch) is not counted.
     pub late: u32,
@@ -143,7 +148,6 @@ impl StepQueue {
                 steps: 0,
                 flushed: 0,
                 overruns: 0,
-                stretched: 0,
                 late: 0,
             },
         }
@@ -221,14 +225,24 @@ impl StepQueue {
     pub fn next_wake(&self, now: u32) -> Option<u32> {
         // Held events (a trip not yet taken) wake nothing: the interrupt would only spin on them.
         let head = self.events.front().filter(|_| self.tripped == 0);
-        let mut wake = head.map(|e| self.ready_at(e, now));
+        let next = head.map(|e| (self.ready_at(e, now), bit(e.axis)));
+        let mut end: Option<u32> = None;
         for (i, &rose) in self.rose.iter().enumerate() {
             if self.high & (1 << i) != 0 {
-                let end = rose.wrapping_add(PULSE_TICKS);
-                wake = Some(wake.map_or(end, |w| earlier(w, end, now)));
+                let e = rose.wrapping_add(PULSE_TICKS);
+                end = Some(end.map_or(e, |w| earlier(w, e, now)));
             }
         }
-        wake
+        match (next, end) {
+            // The next event comes soon after the pulse end and is another axis's: end the pulse
+            // in that wake-up instead of one of its own (half the interrupts with 4 axes busy).
+            (Some((t, b)), Some(e)) if self.high & b == 0 && t.wrapping_sub(e) <= MERGE_TICKS && reached(e, t) => {
+                Some(t)
+            }
+            (Some((t, _)), Some(e)) => Some(earlier(t, e, now)),
+            (Some((t, _)), None) => Some(t),
+            (None, e) => e,
+        }
     }
 
     /// The earliest instant `e` may be applied without breaking the pulse shape: never `now` unless
@@ -267,22 +281,10 @@ impl StepQueue {
     /// The timer interrupt: at `now`, end pulses that have lasted [`PULSE_TICKS`], apply every due
     /// event the pulse shape allows, in order. Returns the pin changes and the next wake-up.
     pub fn service(&mut self, now: u32) -> (Pins, Option<u32>) {
-        let mut pins = Pins::default();
-        for i in 0..AXIS_COUNT {
-            let b = 1u8 << i;
-            if self.high & b != 0
-                && self
-                    .rose
-                    .get(i)
-                    .is_some_and(|&r| reached(r.wrapping_add(PULSE_TICKS), now))
-            {
-                self.high &= !b;
-                pins.step_low |= b;
-                if let Some(f) = self.fell.get_mut(i) {
-                    *f = now;
-                }
-            }
-        }
+        let mut pins = Pins {
+            step_low: self.end_pulses(now),
+            ..Pins::default()
+        };
         if self.tripped == 0 {
             while let Some(&e) = self.events.front() {
                 if !reached(e.due, now) {
@@ -291,7 +293,6 @@ impl StepQueue {
                 let b = bit(e.axis);
                 let i = e.axis.index();
                 if self.high & b != 0 || self.ready_at(&e, now) != now {
-                    self.stats.stretched = self.stats.stretched.saturating_add(1);
                     break;
                 }
                 if e.due != now && e.what == What::Step {
@@ -335,25 +336,32 @@ impl StepQueue {
         }
         self.tripped |= hit;
         self.flush();
-        // Cut a pulse short only if it has not met the driver's minimum: a pulse that short may
-        // or may not count, so let it complete and end it at the next service instead.
-        let mut pins = Pins::default();
+        // End the pulses that have met the driver's minimum; a shorter one may or may not count
+        // as a step, so it completes and ends at the next service instead.
+        Pins {
+            step_low: self.end_pulses(now),
+            ..Pins::default()
+        }
+    }
+
+    /// Lower the STEP pins high for at least [`PULSE_TICKS`]; returns them (bit per axis).
+    fn end_pulses(&mut self, now: u32) -> u8 {
+        let mut ended = 0;
         for i in 0..AXIS_COUNT {
             let b = 1u8 << i;
-            if self.high & b != 0
-                && self
-                    .rose
-                    .get(i)
-                    .is_some_and(|&r| reached(r.wrapping_add(PULSE_TICKS), now))
-            {
+            let done = self
+                .rose
+                .get(i)
+                .is_some_and(|&r| reached(r.wrapping_add(PULSE_TICKS), now));
+            if self.high & b != 0 && done {
                 self.high &= !b;
-                pins.step_low |= b;
+                ended |= b;
                 if let Some(f) = self.fell.get_mut(i) {
                     *f = now;
                 }
             }
         }
-        pins
+        ended
     }
 
     /// The controller loop takes the latched trip (bit per axis) and resumes playback. Events
@@ -409,6 +417,25 @@ mod tests {
     }
 
     #[test]
+    fn a_pulse_ends_in_the_next_axis_wake_up_when_it_follows_closely() {
+        let mut q = StepQueue::new();
+        q.push_step(Axis::Light, 100).unwrap();
+        q.push_step(Axis::Detector, 100 + PULSE_TICKS + 4).unwrap();
+        q.push_step(Axis::Tilt, 200).unwrap();
+        let log = play(&mut q, 0, 1_000);
+        let wakes: heapless::Vec<(u32, Pins), 8> = log.iter().copied().collect();
+        // Light rises at 100 and falls with the detector's rise at 107; the detector's pulse has
+        // no close follower and ends on its own; the tilt alike.
+        assert_eq!(wakes[0].0, 100);
+        assert_eq!(
+            (wakes[1].0, wakes[1].1.step_low, wakes[1].1.step_high),
+            (107, 0b0001, 0b0010)
+        );
+        assert_eq!((wakes[2].0, wakes[2].1.step_low), (110, 0b0010));
+        assert_eq!(wakes.len(), 5);
+    }
+
+    #[test]
     fn a_too_fast_schedule_is_stretched_never_shortened() {
         let mut q = StepQueue::new();
         // Same axis 2 ticks apart: below pulse + low time.
@@ -417,7 +444,7 @@ mod tests {
         let log = play(&mut q, 0, 100);
         let rises: heapless::Vec<u32, 4> = log.iter().filter(|(_, p)| p.step_high != 0).map(|&(t, _)| t).collect();
         assert_eq!(&rises[..], &[10, 10 + PULSE_TICKS + LOW_TICKS]);
-        assert!(q.stats().stretched > 0);
+        assert!(q.stats().late > 0);
     }
 
     #[test]

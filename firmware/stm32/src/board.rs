@@ -34,10 +34,6 @@ pub const SYSCLK_HZ: u32 = 96_000_000;
 /// TIM2 prescaler to 1 MHz: one tick per microsecond, the unit of `Hal::now_us`.
 const TIM2_PSC: u16 = (SYSCLK_HZ / 1_000_000 - 1) as u16;
 
-/// GPIOB pin numbers, indexed by `Axis::index` (light, detector, tilt, azimuth).
-const STEP_PIN: [u32; 4] = [0, 1, 6, 7];
-const DIR_PIN: [u32; 4] = [12, 13, 14, 15];
-
 /// Conversions summed per channel at the end of an exposure.
 pub const ADC_OVERSAMPLE: u32 = 8;
 /// 144 ADC cycles + 12 = 6.5 us per conversion at the 24 MHz ADC clock (PCLK2 96 MHz / 4): ample for
@@ -47,26 +43,21 @@ const ADC_SAMPLE_TIME: SampleTime = SampleTime::CYCLES144;
 /// The queue the controller loop fills and the TIM2 / EXTI interrupts play and stop.
 static STEP_QUEUE: Mutex<CriticalSectionRawMutex, RefCell<StepQueue>> = Mutex::new(RefCell::new(StepQueue::new()));
 
-/// `Pins` as one GPIOB BSRR word (set bits low half, reset bits high half).
+/// Axis bits (`1 << Axis::index`) to STEP pin bits: light PB0, detector PB1, tilt PB6, azimuth PB7.
+fn step_pins(axes: u8) -> u32 {
+    let a = u32::from(axes);
+    (a & 0b0011) | ((a & 0b1100) << 4)
+}
+
+/// Axis bits to DIR pin bits: PB12..PB15 in axis order.
+fn dir_pins(axes: u8) -> u32 {
+    u32::from(axes & 0b1111) << 12
+}
+
+/// `Pins` as one GPIOB BSRR word (set bits low half, reset bits high half). Bit arithmetic rather
+/// than a loop over a pin table: this runs in every step interrupt.
 fn bsrr(p: Pins) -> u32 {
-    let mut w = 0u32;
-    for i in 0..4 {
-        let b = 1u8 << i;
-        let (step, dir) = (STEP_PIN[i], DIR_PIN[i]);
-        if p.step_high & b != 0 {
-            w |= 1 << step;
-        }
-        if p.step_low & b != 0 {
-            w |= 1 << (step + 16);
-        }
-        if p.dir_increasing & b != 0 {
-            w |= 1 << dir;
-        }
-        if p.dir_decreasing & b != 0 {
-            w |= 1 << (dir + 16);
-        }
-    }
-    w
+    (step_pins(p.step_high) | dir_pins(p.dir_increasing)) | ((step_pins(p.step_low) | dir_pins(p.dir_decreasing)) << 16)
 }
 
 fn apply(p: Pins) {
@@ -79,9 +70,12 @@ fn apply(p: Pins) {
 /// (or due before the write lands) is forced with a software compare event, so none is missed
 /// until the counter wraps.
 fn arm(q: &StepQueue) {
+    arm_at(q.next_wake(pac::TIM2.cnt().read()));
+}
+
+fn arm_at(wake: Option<u32>) {
     let t = pac::TIM2;
-    let now = t.cnt().read();
-    match q.next_wake(now) {
+    match wake {
         Some(w) => {
             t.ccr(0).write_value(w);
             t.dier().modify(|d| d.set_ccie(0, true));
@@ -98,11 +92,17 @@ fn arm(q: &StepQueue) {
 pub struct CsQueue;
 
 impl SharedQueue for CsQueue {
+    /// Re-arms the timer only if it may be idle (empty queue, or events held by a trip): events are
+    /// queued in time order, so one added behind others never needs an earlier wake-up than the
+    /// one armed. Saves a `next_wake` per queued step on the loop side.
     fn with<R>(&self, f: impl FnOnce(&mut StepQueue) -> R) -> R {
         STEP_QUEUE.lock(|cell| {
             let mut q = queue(cell);
+            let idle = q.is_empty() || q.tripped() != 0;
             let r = f(&mut q);
-            arm(&q);
+            if idle || q.tripped() != 0 {
+                arm(&q);
+            }
             r
         })
     }
@@ -153,9 +153,9 @@ fn TIM2() {
     t.sr().write_value(pac::timer::regs::SrGp16(!(1 << 1)));
     STEP_QUEUE.lock(|cell| {
         let mut q = queue(cell);
-        let (pins, _) = q.service(t.cnt().read());
+        let (pins, wake) = q.service(t.cnt().read());
         apply(pins);
-        arm(&q);
+        arm_at(wake);
     });
 }
 
@@ -163,18 +163,9 @@ fn TIM2() {
 fn switch_closed_irq(lines: u32) {
     let pending = pac::EXTI.pr(0).read().0 & lines;
     pac::EXTI.pr(0).write_value(pac::exti::regs::Lines(pending));
-    // EXTI line -> axis bit: PA1 light, PA2 detector, PA3 tilt, PB5 azimuth.
-    let mut closed = 0u8;
-    for (line, axis) in [
-        (1, Axis::Light),
-        (2, Axis::Detector),
-        (3, Axis::Tilt),
-        (5, Axis::Azimuth),
-    ] {
-        if pending & (1 << line) != 0 {
-            closed |= 1 << axis.index();
-        }
-    }
+    // EXTI line -> axis bit: lines 1, 2, 3 (PA1 light, PA2 detector, PA3 tilt) -> bits 0, 1, 2;
+    // line 5 (PB5 azimuth) -> bit 3.
+    let closed = ((pending >> 1) & 0b0111) as u8 | ((pending >> 2) & 0b1000) as u8;
     STEP_QUEUE.lock(|cell| {
         let mut q = queue(cell);
         apply(q.trip(closed, pac::TIM2.cnt().read()));

@@ -392,25 +392,22 @@ impl Seen {
         }
     }
 
-    /// State changes with the step queue's counters; a queue overrun (a bug: the loop keeps room
-    /// for a poll's events) at once.
+    /// State changes, faults, and a step queue overrun (a bug: the loop keeps room for a poll's
+    /// events) or late steps (the loop fell behind the lookahead), once per change of the count
+    /// at a state change, so nothing is logged per step.
     fn log_changes(&mut self, device: &Device, hal: &QueuedHal<BoardIo, CsQueue>) {
         let state = device.controller().state();
-        let stats = hal.queue.with(|q| q.stats());
         if state != self.state {
-            info!(
-                "state {=str} -> {=str} (steps {=u32}, late {=u32}, flushed {=u32})",
-                state_name(self.state),
-                state_name(state),
-                stats.steps,
-                stats.late,
-                stats.flushed
-            );
+            info!("state {=str} -> {=str}", state_name(self.state), state_name(state));
             self.state = state;
-        }
-        if stats.overruns != self.overruns {
-            warn!("step queue overrun: {=u32} events lost", stats.overruns);
-            self.overruns = stats.overruns;
+            let stats = hal.queue.with(|q| q.stats());
+            if stats.overruns.wrapping_add(stats.late) != self.overruns {
+                warn!(
+                    "step queue: {=u32} overruns, {=u32} late steps",
+                    stats.overruns, stats.late
+                );
+                self.overruns = stats.overruns.wrapping_add(stats.late);
+            }
         }
         let fault = device.controller().last_fault();
         if fault != self.fault {
