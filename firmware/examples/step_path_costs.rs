@@ -137,7 +137,8 @@ fn main() {
     send(&mut dev, &mut hal, &mut seq, HostMsg::Hello(Hello::OURS));
     send(&mut dev, &mut hal, &mut seq, HostMsg::Configure(cfg));
     send(&mut dev, &mut hal, &mut seq, HostMsg::Home);
-    run(&mut dev, &mut hal, &mut Costs::default());
+    let mut homing = Costs::default();
+    run(&mut dev, &mut hal, &mut homing);
     let d = |ti: f32, to: f32, po: f32| Direction {
         theta_i: ti.to_radians(),
         phi_i: 0.0,
@@ -168,8 +169,9 @@ fn main() {
     let mut costs = Costs::default();
     run(&mut dev, &mut hal, &mut costs);
     println!(
-        "whole run (homing + scan, the divisor for callgrind's counts): {} steps",
-        hal.queue.with(|q| q.stats()).steps
+        "whole run (homing + scan, the divisors for callgrind's counts): {} steps, {} timer wake-ups",
+        hal.queue.with(|q| q.stats()).steps,
+        homing.wakes + costs.wakes
     );
     let after = hal.queue.with(|q| q.stats());
     let steps = u64::from(after.steps - before.steps);

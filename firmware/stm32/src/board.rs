@@ -133,6 +133,8 @@ pub fn start_step_timer(tim2: embassy_stm32::Peri<'static, embassy_stm32::periph
     timer.start();
     core::mem::forget(timer); // keep TIM2 clocked and running for good
     interrupt::TIM2.set_priority(Priority::P0);
+    // USB's handler (embassy's default priority is also P0) must not hold up a step edge.
+    interrupt::OTG_FS.set_priority(Priority::P1);
     for irq in [interrupt::EXTI1, interrupt::EXTI2, interrupt::EXTI3, interrupt::EXTI9_5] {
         irq.set_priority(Priority::P0);
     }
