@@ -16,10 +16,9 @@
 //! legal in `[blocking, 2 pi - blocking]`; the config check guarantees `light.max - detector.min
 //! <= 2 pi - blocking`): plan poses keep both arm angles inside (-90, +90) deg (the below-horizon
 //! check: cos theta = cos(tilt) cos(arm angle) > 0), so the detector is below `+90 deg - blocking`
-//! when the light,
-//! after seeking its max (which only widens the separation, within that bound), parks down to
-//! +90 deg; then the detector's seek toward its min widens it again and its park ends at the rest
-//! pose. What cannot be checked is a pose nobody knows: at power-up or after a limit fault, an arm
+//! when the light, after seeking its max (which only widens the separation, within that bound),
+//! parks down to +90 deg; then the detector's seek toward its min widens it again and its park
+//! ends at the rest pose. What cannot be checked is a pose nobody knows: at power-up or after a limit fault, an arm
 //! left beyond +-90 deg by hand, or a light back-off from a switch closed at the start.
 //!
 //! The seek stops abruptly when the switch closes, at a quarter of the axis's top speed: the
