@@ -6,6 +6,7 @@
 //! | plan ring ([`crate::plan::PlanQueue`]) | 20 B (index + 4 step targets) | 512 | ~10 KiB |
 //! | measurements ([`crate::measurements::MeasurementBuffer`]) | 56 B | 128 | ~7 KiB |
 //! | outbox ([`crate::link::Link`]) | bytes | 2048 | 2 KiB |
+//! | step events ([`crate::step_queue::StepQueue`], board only) | 8 B | 256 | 2 KiB |
 
 /// Plan directions accepted ahead of the one being measured. At ~1 s per direction this is minutes
 /// of work, so the host's refills are never on the critical path; a plan of any length streams
@@ -19,3 +20,8 @@ pub const MEASUREMENT_CAPACITY: usize = 128;
 
 /// Encoded frames waiting for the binary to write them to USB/UART. Holds ten worst-case frames.
 pub const OUTBOX_BYTES: usize = 2048;
+
+/// Timed STEP/DIR events between the controller loop and the step timer interrupt. The loop keeps
+/// [`crate::timed::LOOKAHEAD_US`] (2 ms) queued: at 4 axes x 20 kHz that is 160 steps, plus DIR
+/// events at move starts and one poll's worth of headroom ([`crate::timed::EVENTS_PER_POLL`]).
+pub const STEP_QUEUE_EVENTS: usize = 256;

@@ -45,7 +45,7 @@ pub const DETECTOR_MARGIN_US: u64 = 100_000;
 const READOUT_POLL_US: u64 = 100;
 /// State transitions taken in one `poll` when nothing needs waiting for (e.g. homing: park done ->
 /// next axis's seek; scan: readout -> next move). Bounded so a poll's cost is bounded.
-const TRANSITIONS_PER_POLL: usize = 4;
+pub const TRANSITIONS_PER_POLL: usize = 4;
 
 /// Where the current plan direction stands.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -187,6 +187,72 @@ impl Controller {
                 }
             }
             Phase::Idle | Phase::Moving { .. } => None,
+        }
+    }
+
+    /// Switches whose closing stops all motion (bit per `Axis::index`): during a homing seek the
+    /// seeking axis's; during a scan or any other move every non-continuous axis's (a continuous
+    /// axis's index sensor closes once a turn); none while nothing moves or homing moves away from
+    /// a switch (a bouncing contact must not stop a back-off or park).
+    pub fn stop_mask(&self) -> u8 {
+        let Some(cfg) = self.kin.first().map(|k| *k.config()) else {
+            return 0;
+        };
+        if self.state == ControllerState::Homing {
+            return match (self.homing.axis(), self.homing.stage) {
+                (Some(axis), Stage::Seek) => 1 << axis.index(),
+                _ => 0,
+            };
+        }
+        let active =
+            self.stepper.is_moving() || matches!(self.state, ControllerState::Running | ControllerState::Paused);
+        if !active {
+            return 0;
+        }
+        AXES.iter()
+            .filter(|&&a| !cfg.axis(a).continuous)
+            .fold(0, |m, a| m | 1 << a.index())
+    }
+
+    /// Would a board-side stop on these switches halt a move this controller has not stopped?
+    pub fn halts_on(&self, closed: u8) -> bool {
+        let Some(cfg) = self.kin.first().map(|k| *k.config()) else {
+            return false;
+        };
+        if self.state == ControllerState::Homing {
+            return matches!((self.homing.axis(), self.homing.stage), (Some(a), Stage::Seek) if closed & (1 << a.index()) != 0);
+        }
+        let already = matches!(self.last_fault(), Some(Fault::LimitSwitch(_) | Fault::HomeNotFound(_)))
+            && self.state == ControllerState::Fault;
+        !already
+            && AXES
+                .iter()
+                .any(|&a| !cfg.axis(a).continuous && closed & (1 << a.index()) != 0)
+    }
+
+    /// The board stopped every axis on these switches (see [`Controller::halts_on`]).
+    pub fn limit_tripped<H: Hal>(&mut self, hal: &mut H, closed: u8) {
+        if !self.halts_on(closed) {
+            return;
+        }
+        let now = hal.now_us();
+        self.last_now_us = self.last_now_us.max(now);
+        self.more_work = true;
+        self.stepper.halt();
+        if self.state == ControllerState::Homing {
+            if let Some(axis) = self.homing.axis() {
+                self.found_home(hal, now, axis);
+            }
+            return;
+        }
+        let Some(cfg) = self.kin.first().map(|k| *k.config()) else {
+            return;
+        };
+        if let Some(&axis) = AXES
+            .iter()
+            .find(|&&a| !cfg.axis(a).continuous && closed & (1 << a.index()) != 0)
+        {
+            self.enter_fault(Fault::LimitSwitch(axis));
         }
     }
 
@@ -335,6 +401,11 @@ impl Controller {
         if self.kin.is_empty() {
             return Err(RefuseReason::NotConfigured);
         }
+        // Before `WrongState`: "home first" is the useful answer in Idle, Homing and after a fault
+        // that needs re-homing.
+        if !self.homed {
+            return Err(RefuseReason::NotHomed);
+        }
         if self.state != ControllerState::Ready || self.stepper.is_moving() {
             return Err(self.wrong_state());
         }
@@ -390,6 +461,16 @@ impl Controller {
         self.plan_done = 0;
         self.credit_reported = None;
         Ok(())
+    }
+
+    /// The link dropped [`crate::link::BAD_FRAME_FAULT_RUN`] frames in a row: the host cannot be
+    /// heard (it could not even stop us), so nothing new starts; a move in progress finishes its
+    /// deceleration. Cleared by `Abort` or `Home` once frames get through again.
+    pub(crate) fn link_untrusted(&mut self) {
+        if self.state != ControllerState::Fault {
+            self.enter_fault(Fault::BadFrame);
+            self.more_work = true;
+        }
     }
 
     fn enter_fault(&mut self, fault: Fault) {

@@ -50,6 +50,24 @@ impl Device {
         self.controller.next_deadline_us()
     }
 
+    /// Switches whose closing must stop all motion at once (bit per `Axis::index`): what the
+    /// controller itself stops on, for a board that stops its step timer in the switch interrupt.
+    pub fn stop_mask(&self) -> u8 {
+        self.controller.stop_mask()
+    }
+
+    /// Would a trip of these switches (from `stop_mask`) halt a move the controller has not
+    /// stopped yet? Then steps queued since the trip belong to that move.
+    pub fn halts_on(&self, closed: u8) -> bool {
+        self.controller.halts_on(closed)
+    }
+
+    /// The board stopped every axis because these switches closed: react as to the switch found
+    /// by polling (homing: that is the home position; otherwise `Fault::LimitSwitch`).
+    pub fn limit_tripped<H: Hal>(&mut self, hal: &mut H, closed: u8) {
+        self.controller.limit_tripped(hal, closed);
+    }
+
     pub fn controller(&self) -> &Controller {
         &self.controller
     }

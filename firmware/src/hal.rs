@@ -1,9 +1,11 @@
 //! What the board does, and nothing else: step/dir outputs, limit inputs, the detector, a clock.
 //!
 //! Deliberately small and synchronous (embedded-hal style): the step generator decides *when* to
-//! step from [`Hal::now_us`], the HAL only toggles pins. The controller tells its caller when it next
-//! needs to run ([`crate::Device::next_deadline_us`]), so the binary arms a timer for that instant and
-//! the host tests jump a mock clock straight to it. A mock HAL records every call with its timestamp,
+//! step from [`Hal::now_us`], the HAL only carries it out. The controller tells its caller when it
+//! next needs to run ([`crate::Device::next_deadline_us`]), so host tests jump a mock clock straight
+//! to it. On the board, [`crate::timed::QueuedHal`] implements this trait with a clock that runs
+//! ahead of real time during moves and turns `step` / `set_direction` into timed events that a
+//! timer interrupt plays ([`crate::step_queue`]). A mock HAL records every call with its timestamp,
 //! so host tests can check step rates, accelerations and the arm-separation invariant.
 
 use gonio_shared::msg::caps::MAX_CHANNELS;

@@ -12,8 +12,18 @@
 //! detector's own seek and park moving away from the light for any legal start. From the moment
 //! both arms are homed every step is checked as in a plan move.
 //!
+//! Why the unchecked stages are safe from any pose a plan leaves (separation = light - detector,
+//! legal in `[blocking, 2 pi - blocking]`; the config check guarantees `light.max - detector.min
+//! <= 2 pi - blocking`): plan poses keep both arm angles inside (-90, +90) deg (the below-horizon
+//! check: cos theta = cos(tilt) cos(arm angle) > 0), so the detector is below `+90 deg - blocking`
+//! when the light, after seeking its max (which only widens the separation, within that bound),
+//! parks down to +90 deg; then the detector's seek toward its min widens it again and its park
+//! ends at the rest pose. What cannot be checked is a pose nobody knows: at power-up or after a limit fault, an arm
+//! left beyond +-90 deg by hand, or a light back-off from a switch closed at the start.
+//!
 //! The seek stops abruptly when the switch closes, at a quarter of the axis's top speed: the
-//! switch position is the reference, so no deceleration past it is wanted.
+//! switch position is the reference, so no deceleration past it is wanted. On the board the stop
+//! is the switch's EXTI interrupt halting the step timer (`crate::step_queue`), within one step.
 
 use gonio_shared::instrument::{HomeSide, InstrumentConfig};
 use gonio_shared::kinematics::Kinematics;

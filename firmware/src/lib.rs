@@ -9,6 +9,8 @@
 //! - [`controller`]: the state machine, homing, the per-direction scan sequence;
 //! - [`plan`]: the bounded plan ring and the reachability check of each direction;
 //! - [`stepper`]: synchronised trapezoidal moves with step instants computed in real time;
+//! - [`step_queue`]: timed STEP/DIR events played back by a timer interrupt (the board's steps);
+//! - [`timed`]: the `Hal` adapter and loop that run the controller ahead of real time into it;
 //! - [`separation`]: the arms' blocking-angle invariant;
 //! - [`measurements`]: readings kept until acknowledged;
 //! - [`homing`]: switch positions and homing moves;
@@ -26,7 +28,9 @@ pub mod link;
 pub mod measurements;
 pub mod plan;
 pub mod separation;
+pub mod step_queue;
 pub mod stepper;
+pub mod timed;
 
 pub use device::Device;
 pub use hal::{Hal, Readout};

@@ -20,6 +20,11 @@ use heapless::Deque;
 /// than a gap (NAKed). Larger than any sane number of frames in flight.
 pub const DUPLICATE_WINDOW: u16 = 64;
 
+/// Bad frames in a row (no good frame between them) after which the link is not trusted and the
+/// controller raises `Fault::BadFrame`. A burst of line noise or a cable unplugged mid-frame costs a
+/// few; 16 in a row means the host cannot reach us, so the scan must not go on unsupervised.
+pub const BAD_FRAME_FAULT_RUN: u32 = 16;
+
 /// Frames one host frame can cause: `Ack` plus at most two answers (e.g. `Fault` + `Credit`).
 const REPLIES_PER_FRAME: usize = 3;
 const REPLY_RESERVE: usize = REPLIES_PER_FRAME * MAX_WIRE_FRAME;
@@ -44,6 +49,8 @@ pub struct Link {
     outbox: Deque<u8, OUTBOX_BYTES>,
     /// Replies that did not fit (a bug in the reserve arithmetic if ever non-zero).
     lost_replies: u32,
+    /// Bad frames since the last good one.
+    bad_run: u32,
 }
 
 impl Default for Link {
@@ -60,6 +67,7 @@ impl Link {
             tx_seq: 0,
             outbox: Deque::new(),
             lost_replies: 0,
+            bad_run: 0,
         }
     }
 
@@ -109,8 +117,17 @@ impl Link {
             }
             match self.decoder.push::<HostMsg>(byte) {
                 None => {}
-                Some(Err(e)) => self.nak(e.nak_reason()),
-                Some(Ok(frame)) => self.on_frame(frame.seq, frame.msg, controller, hal),
+                Some(Err(e)) => {
+                    self.nak(e.nak_reason());
+                    self.bad_run = self.bad_run.saturating_add(1);
+                    if self.bad_run == BAD_FRAME_FAULT_RUN {
+                        controller.link_untrusted();
+                    }
+                }
+                Some(Ok(frame)) => {
+                    self.bad_run = 0;
+                    self.on_frame(frame.seq, frame.msg, controller, hal);
+                }
             }
         }
         bytes.len()

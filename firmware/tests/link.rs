@@ -4,7 +4,8 @@
 mod common;
 
 use common::*;
-use gonio_shared::msg::{ControllerState, DeviceMsg, Hello, HostMsg, NakReason};
+use gonio_firmware::link::BAD_FRAME_FAULT_RUN;
+use gonio_shared::msg::{Command, ControllerState, DeviceMsg, Fault, Hello, HostMsg, NakReason, RefuseReason};
 use proptest::prelude::*;
 
 fn fixed(cases: u32) -> proptest::test_runner::Config {
@@ -62,7 +63,15 @@ proptest! {
         let dropped = b.dev.link().decoder_stats().bad() - bad_before;
         prop_assert_eq!(naks(&r).len() as u32, dropped);
         prop_assert!(acks(&r).is_empty(), "garbage was acknowledged: {:?}", r);
-        assert_still(&mut b);
+        if dropped >= BAD_FRAME_FAULT_RUN {
+            // That many bad frames in a row: the link is not trusted (and still nothing moves).
+            prop_assert!(r.contains(&DeviceMsg::Fault(Fault::BadFrame)), "{:?}", r);
+            b.run_idle(10_000_000);
+            prop_assert_eq!(b.hal.step_count, 0);
+            prop_assert_eq!(b.dev.controller().state(), ControllerState::Fault);
+        } else {
+            assert_still(&mut b);
+        }
         // The link still works afterwards (a delimiter flushes any partial frame first).
         b.send_raw(&[0]);
         let r = b.send(HostMsg::GetStatus);
@@ -204,4 +213,47 @@ fn a_host_that_never_reads_is_throttled_not_answered_with_lost_replies() {
         .count();
     assert_eq!(statuses, 500, "{} messages after the drain", b.log.len() - before);
     assert_eq!(b.dev.link().lost_replies(), 0);
+}
+
+/// `BAD_FRAME_FAULT_RUN` bad frames in a row raise `Fault::BadFrame`; one good frame in between
+/// resets the count. During a scan the fault lets the move in progress finish and starts nothing
+/// new; `Abort` clears it.
+#[test]
+fn a_run_of_bad_frames_faults_and_a_good_frame_resets_the_run() {
+    let mut b = armed();
+    let bad = [0x42u8, 0x00];
+    for _ in 0..BAD_FRAME_FAULT_RUN - 1 {
+        b.send_raw(&bad);
+    }
+    b.send(HostMsg::GetStatus);
+    for _ in 0..BAD_FRAME_FAULT_RUN - 1 {
+        b.send_raw(&bad);
+    }
+    assert_eq!(b.dev.controller().state(), ControllerState::Ready, "the run was reset");
+    // Start the scan, let the first move begin, then the run that breaks the link.
+    b.send(HostMsg::Start);
+    while b.hal.step_count == 0 {
+        assert!(b.tick());
+    }
+    let mut r = Vec::new();
+    for _ in 0..BAD_FRAME_FAULT_RUN {
+        r.extend(b.send_raw(&bad));
+    }
+    assert!(r.contains(&DeviceMsg::Fault(Fault::BadFrame)), "{r:?}");
+    assert_eq!(b.dev.controller().state(), ControllerState::Fault);
+    assert!(b.dev.controller().is_moving(), "the move winds down, not cut short");
+    b.run_idle(600_000_000);
+    assert!(!b.dev.controller().is_moving());
+    assert_eq!(b.hal.exposure_count(), 0, "no measurement after the fault");
+    // Not a fault that needs homing: Abort clears it, then Start runs again.
+    assert!(b.refusals().is_empty());
+    b.send(HostMsg::Abort);
+    assert_eq!(b.dev.controller().state(), ControllerState::Ready);
+    let r = b.send(HostMsg::Start);
+    assert!(!r.iter().any(|m| matches!(m, DeviceMsg::Refused { .. })), "{r:?}");
+    // Start is NotHomed only before homing; here it runs.
+    assert!(!r.contains(&DeviceMsg::Refused {
+        command: Command::Start,
+        reason: RefuseReason::NotHomed
+    }));
 }

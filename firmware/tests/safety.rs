@@ -164,16 +164,14 @@ fn a_limit_switch_mid_move_stops_every_axis_within_one_step_and_needs_rehoming()
     assert!(!s.homed);
     assert_eq!(s.last_fault, Some(Fault::LimitSwitch(Axis::Light)));
     // Nothing but homing clears it.
-    for (cmd, command) in [
-        (HostMsg::Start, Command::Start),
-        (HostMsg::Resume, Command::Resume),
-        (HostMsg::Abort, Command::Abort),
+    let fault = RefuseReason::WrongState(ControllerState::Fault);
+    for (cmd, command, reason) in [
+        (HostMsg::Start, Command::Start, RefuseReason::NotHomed),
+        (HostMsg::Resume, Command::Resume, fault),
+        (HostMsg::Abort, Command::Abort, fault),
     ] {
         let r = b.send(cmd);
-        assert_eq!(
-            refused(&r),
-            Some((command, RefuseReason::WrongState(ControllerState::Fault)))
-        );
+        assert_eq!(refused(&r), Some((command, reason)));
     }
     b.hal.forced_closed = [None; 4];
     b.hal.close_after_steps = None;
@@ -211,11 +209,8 @@ fn commands_in_the_wrong_state_are_refused_with_a_reason() {
         ))
     );
     b.send(HostMsg::Configure(cfg));
-    // Idle (not homed).
-    assert_eq!(
-        refused(&b.send(HostMsg::Start)),
-        Some((Command::Start, WrongState(ControllerState::Idle)))
-    );
+    // Idle (not homed): Start says why.
+    assert_eq!(refused(&b.send(HostMsg::Start)), Some((Command::Start, NotHomed)));
     assert_eq!(
         refused(&b.send(HostMsg::Resume)),
         Some((Command::Resume, WrongState(ControllerState::Idle)))
@@ -226,6 +221,7 @@ fn commands_in_the_wrong_state_are_refused_with_a_reason() {
     );
     // Homing.
     b.send(HostMsg::Home);
+    assert_eq!(refused(&b.send(HostMsg::Start)), Some((Command::Start, NotHomed)));
     assert_eq!(
         refused(&b.send(HostMsg::Home)),
         Some((Command::Home, WrongState(ControllerState::Homing)))

@@ -150,6 +150,8 @@ pub enum RefuseReason {
     Forgotten {
         oldest_kept: u32,
     },
+    /// `Start` before homing has completed (positions are not known).
+    NotHomed,
 }
 
 /// Why a frame was not accepted.
@@ -175,8 +177,6 @@ pub enum Fault {
     BufferOverflow,
     /// Too many bad frames in a row for the link to be trusted.
     BadFrame,
-    /// Motion was asked for before homing.
-    NotHomed,
     /// The detector did not answer within its exposure plus margin.
     DetectorTimeout,
     /// Homing travelled the axis's whole range without its switch closing (or could not back off a
@@ -366,7 +366,6 @@ pub(crate) mod tests {
                 (any::<u32>(), unreachable()).prop_map(|(index, reason)| Fault::Unreachable { index, reason }),
                 Just(Fault::BufferOverflow),
                 Just(Fault::BadFrame),
-                Just(Fault::NotHomed),
                 Just(Fault::DetectorTimeout),
                 axis().prop_map(Fault::HomeNotFound),
             ]
@@ -466,6 +465,7 @@ pub(crate) mod tests {
                 any::<u32>().prop_map(|expected| RefuseReason::OutOfOrder { expected }),
                 Just(RefuseReason::NoCredit),
                 any::<u32>().prop_map(|oldest_kept| RefuseReason::Forgotten { oldest_kept }),
+                Just(RefuseReason::NotHomed),
             ]
         }
         fn nak_reason() -> impl Strategy<Value = NakReason> {

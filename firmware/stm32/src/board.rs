@@ -1,27 +1,38 @@
-//! `BoardHal`: the `gonio_firmware::Hal` of the Black Pill. Pins only; every decision (when to step,
-//! which way, what a closed switch means) is the controller's.
+//! The Black Pill's side of the step path and the board I/O; every decision (when to step, which
+//! way, what a closed switch means) is the logic crate's (`gonio_firmware::timed`,
+//! `gonio_firmware::step_queue`).
 //!
-//! - STEP/DIR/ENABLE per axis on GPIO outputs (README pin table); ENABLE is driven active (low) at
-//!   start-up, so the motors hold torque from boot.
-//! - Home/limit switches on inputs with pull-ups, active low, read as levels when the controller asks.
+//! - STEP/DIR per axis on GPIOB (PB0, PB1, PB6, PB7 / PB12..PB15), so one write of GPIOB's BSRR
+//!   applies everything the step timer decided at an instant; ENABLE driven active (low) from boot.
+//! - TIM2 (32-bit, 1 MHz, counting the same microseconds as embassy-time) plays the `StepQueue`:
+//!   its capture/compare 1 interrupt runs `StepQueue::service` at each wake-up.
+//! - Home/limit switches on EXTI lines 1, 2, 3 and 5 (falling edge = closing, pull-ups): the EXTI
+//!   interrupt calls `StepQueue::trip`, which stops playback at once if the controller armed that
+//!   switch. Levels are read with `ExtiInput::is_low` for the controller's own checks.
 //! - The detector is the **simple internal-ADC driver**: ADC1 on PA4..PA7, read with blocking
-//!   conversions once the exposure time has elapsed (see [`BoardHal::poll_readout`]). The ADS131M04
+//!   conversions once the exposure time has elapsed (see [`BoardIo::poll_readout`]). The ADS131M04
 //!   on SPI1 is the planned precision option (README).
 
+use core::cell::RefCell;
 use embassy_stm32::adc::{Adc, AnyAdcChannel, SampleTime};
-use embassy_stm32::gpio::{Input, Output};
+use embassy_stm32::exti::ExtiInput;
+use embassy_stm32::gpio::Output;
+use embassy_stm32::interrupt;
+use embassy_stm32::mode::Blocking;
+use embassy_stm32::pac;
 use embassy_stm32::peripherals::ADC1;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::blocking_mutex::Mutex;
 use embassy_time::Instant;
-use gonio_firmware::{Hal, Readout};
+use gonio_firmware::step_queue::{Pins, StepQueue};
+use gonio_firmware::timed::{tick, Board, SharedQueue};
+use gonio_firmware::Readout;
 use gonio_shared::Axis;
 
-/// SYSCLK; the busy-wait delays below are counted in its cycles.
+/// SYSCLK; TIM2's clock is the APB1 timer clock, also 96 MHz (APB1 /2, timers x2).
 pub const SYSCLK_HZ: u32 = 96_000_000;
-const CYCLES_PER_US: u32 = SYSCLK_HZ / 1_000_000;
-/// STEP high time: 5 us, above every common driver's minimum (DRV8825 1.9 us, A4988 1 us, TMC 100 ns).
-const STEP_PULSE_CYCLES: u32 = CYCLES_PER_US * 5;
-/// DIR setup before the next STEP edge: 1 us (DRV8825 650 ns, A4988 200 ns, TMC 20 ns).
-const DIR_SETUP_CYCLES: u32 = CYCLES_PER_US;
+/// TIM2 prescaler to 1 MHz: one tick per microsecond, the unit of `Hal::now_us`.
+const TIM2_PSC: u16 = (SYSCLK_HZ / 1_000_000 - 1) as u16;
 
 /// Conversions summed per channel at the end of an exposure.
 pub const ADC_OVERSAMPLE: u32 = 8;
@@ -29,15 +40,169 @@ pub const ADC_OVERSAMPLE: u32 = 8;
 /// a low-impedance source such as a transimpedance amplifier's output.
 const ADC_SAMPLE_TIME: SampleTime = SampleTime::CYCLES144;
 
-/// The four axes' pins, indexed by `Axis::index`.
+/// The queue the controller loop fills and the TIM2 / EXTI interrupts play and stop.
+static STEP_QUEUE: Mutex<CriticalSectionRawMutex, RefCell<StepQueue>> = Mutex::new(RefCell::new(StepQueue::new()));
+
+/// Axis bits (`1 << Axis::index`) to STEP pin bits: light PB0, detector PB1, tilt PB6, azimuth PB7.
+fn step_pins(axes: u8) -> u32 {
+    let a = u32::from(axes);
+    (a & 0b0011) | ((a & 0b1100) << 4)
+}
+
+/// Axis bits to DIR pin bits: PB12..PB15 in axis order.
+fn dir_pins(axes: u8) -> u32 {
+    u32::from(axes & 0b1111) << 12
+}
+
+/// `Pins` as one GPIOB BSRR word (set bits low half, reset bits high half). Bit arithmetic rather
+/// than a loop over a pin table: this runs in every step interrupt.
+fn bsrr(p: Pins) -> u32 {
+    (step_pins(p.step_high) | dir_pins(p.dir_increasing)) | ((step_pins(p.step_low) | dir_pins(p.dir_decreasing)) << 16)
+}
+
+fn apply(p: Pins) {
+    if !p.is_empty() {
+        pac::GPIOB.bsrr().write_value(pac::gpio::regs::Bsrr(bsrr(p)));
+    }
+}
+
+/// Point TIM2's compare 1 at the queue's next wake-up (or switch it off). A wake-up already due
+/// (or due before the write lands) is forced with a software compare event, so none is missed
+/// until the counter wraps.
+fn arm(q: &StepQueue) {
+    arm_at(q.next_wake(pac::TIM2.cnt().read()));
+}
+
+fn arm_at(wake: Option<u32>) {
+    let t = pac::TIM2;
+    match wake {
+        Some(w) => {
+            t.ccr(0).write_value(w);
+            t.dier().modify(|d| d.set_ccie(0, true));
+            if t.cnt().read().wrapping_sub(w) < 1 << 31 {
+                t.egr().write(|e| e.set_ccg(0, true));
+            }
+        }
+        None => t.dier().modify(|d| d.set_ccie(0, false)),
+    }
+}
+
+/// The queue behind the critical-section mutex; every access re-arms the timer, so an event the
+/// loop just queued into an idle queue gets its wake-up.
+pub struct CsQueue;
+
+impl SharedQueue for CsQueue {
+    /// Re-arms the timer only if it may be idle (empty queue, or events held by a trip): events are
+    /// queued in time order, so one added behind others never needs an earlier wake-up than the
+    /// one armed. Saves a `next_wake` per queued step on the loop side.
+    fn with<R>(&self, f: impl FnOnce(&mut StepQueue) -> R) -> R {
+        STEP_QUEUE.lock(|cell| {
+            let mut q = queue(cell);
+            let idle = q.is_empty() || q.tripped() != 0;
+            let r = f(&mut q);
+            if idle || q.tripped() != 0 {
+                arm(&q);
+            }
+            r
+        })
+    }
+}
+
+/// The queue, inside the critical section. Never already borrowed: every borrow is one critical
+/// section that calls nothing re-entrant. `try_borrow_mut` rather than `borrow_mut` only so the
+/// impossible case is a defmt panic, without `core::fmt` (flash).
+fn queue(cell: &RefCell<StepQueue>) -> core::cell::RefMut<'_, StepQueue> {
+    match cell.try_borrow_mut() {
+        Ok(q) => q,
+        Err(_) => defmt::panic!("step queue re-entered"),
+    }
+}
+
+/// Start TIM2 at 1 MHz with its counter on embassy-time's microseconds, and unmask the step and
+/// switch interrupts (the step timer above everything else: its edges are the product).
+pub fn start_step_timer(tim2: embassy_stm32::Peri<'static, embassy_stm32::peripherals::TIM2>) {
+    use embassy_stm32::interrupt::{InterruptExt, Priority};
+    let timer = embassy_stm32::timer::low_level::Timer::new(tim2);
+    let t = pac::TIM2;
+    t.psc().write_value(TIM2_PSC);
+    t.arr().write_value(u32::MAX);
+    // Load the prescaler, then set the counter (the update event clears it).
+    t.egr().write(|e| e.set_ug(true));
+    t.sr().write_value(pac::timer::regs::SrGp16(0));
+    t.cnt().write_value(tick(Instant::now().as_micros()));
+    timer.start();
+    core::mem::forget(timer); // keep TIM2 clocked and running for good
+    interrupt::TIM2.set_priority(Priority::P0);
+    // USB's handler (embassy's default priority is also P0) must not hold up a step edge.
+    interrupt::OTG_FS.set_priority(Priority::P1);
+    for irq in [interrupt::EXTI1, interrupt::EXTI2, interrupt::EXTI3, interrupt::EXTI9_5] {
+        irq.set_priority(Priority::P0);
+    }
+    // SAFETY: the handlers below only touch TIM2, GPIOB's BSRR, the EXTI pending register and the
+    // queue behind its critical-section mutex.
+    unsafe {
+        interrupt::TIM2.enable();
+        for irq in [interrupt::EXTI1, interrupt::EXTI2, interrupt::EXTI3, interrupt::EXTI9_5] {
+            irq.enable();
+        }
+    }
+}
+
+#[interrupt]
+fn TIM2() {
+    let t = pac::TIM2;
+    // rc_w0: writing 0 clears CC1IF only.
+    t.sr().write_value(pac::timer::regs::SrGp16(!(1 << 1)));
+    STEP_QUEUE.lock(|cell| {
+        let mut q = queue(cell);
+        let (pins, wake) = q.service(t.cnt().read());
+        apply(pins);
+        arm_at(wake);
+    });
+}
+
+/// An EXTI line fired: stop playback if the switch is armed.
+fn switch_closed_irq(lines: u32) {
+    let pending = pac::EXTI.pr(0).read().0 & lines;
+    pac::EXTI.pr(0).write_value(pac::exti::regs::Lines(pending));
+    // EXTI line -> axis bit: lines 1, 2, 3 (PA1 light, PA2 detector, PA3 tilt) -> bits 0, 1, 2;
+    // line 5 (PB5 azimuth) -> bit 3.
+    let closed = ((pending >> 1) & 0b0111) as u8 | ((pending >> 2) & 0b1000) as u8;
+    STEP_QUEUE.lock(|cell| {
+        let mut q = queue(cell);
+        apply(q.trip(closed, pac::TIM2.cnt().read()));
+        arm(&q);
+    });
+}
+
+#[interrupt]
+fn EXTI1() {
+    switch_closed_irq(1 << 1);
+}
+
+#[interrupt]
+fn EXTI2() {
+    switch_closed_irq(1 << 2);
+}
+
+#[interrupt]
+fn EXTI3() {
+    switch_closed_irq(1 << 3);
+}
+
+#[interrupt]
+fn EXTI9_5() {
+    switch_closed_irq(1 << 5);
+}
+
+/// The four axes' output pins, indexed by `Axis::index`; owned so they stay configured. The step
+/// interrupt writes them through GPIOB's BSRR.
+#[allow(dead_code, reason = "kept only so the pins stay configured and driven")]
 pub struct AxisPins {
     pub step: [Output<'static>; 4],
     pub dir: [Output<'static>; 4],
-    /// Held low (driver enabled) for as long as the binary runs: owned, never written again.
-    #[allow(dead_code, reason = "kept only so the pins stay driven")]
+    /// Held low (driver enabled) for as long as the binary runs.
     pub enable: [Output<'static>; 4],
-    /// Home / limit switch, closed = low.
-    pub limit: [Input<'static>; 4],
 }
 
 pub struct Detector {
@@ -52,21 +217,23 @@ struct Exposure {
     exposure_us: u32,
 }
 
-pub struct BoardHal {
-    pins: AxisPins,
-    /// Last level written to each DIR pin, so the setup delay is only paid on a change.
-    dir_increasing: [Option<bool>; 4],
+/// The board I/O besides STEP/DIR: switch levels, the detector, the clock.
+pub struct BoardIo {
+    /// Home / limit switch per axis, closed = low, each on its own EXTI line.
+    limit: [ExtiInput<'static, Blocking>; 4],
     detector: Detector,
     exposure: Option<Exposure>,
+    #[allow(dead_code, reason = "kept only so the pins stay configured and driven")]
+    pins: AxisPins,
 }
 
-impl BoardHal {
-    pub fn new(pins: AxisPins, detector: Detector) -> Self {
+impl BoardIo {
+    pub fn new(pins: AxisPins, limit: [ExtiInput<'static, Blocking>; 4], detector: Detector) -> Self {
         Self {
-            pins,
-            dir_increasing: [None; 4],
+            limit,
             detector,
             exposure: None,
+            pins,
         }
     }
 
@@ -90,36 +257,13 @@ impl BoardHal {
     }
 }
 
-impl Hal for BoardHal {
+impl Board for BoardIo {
     fn now_us(&self) -> u64 {
         Instant::now().as_micros()
     }
 
-    /// DIR high = increasing step count. To reverse an axis, swap one coil pair of its motor.
-    fn set_direction(&mut self, axis: Axis, increasing: bool) {
-        let i = axis.index();
-        let (Some(pin), Some(last)) = (self.pins.dir.get_mut(i), self.dir_increasing.get_mut(i)) else {
-            return;
-        };
-        if *last == Some(increasing) {
-            return;
-        }
-        pin.set_level(increasing.into());
-        *last = Some(increasing);
-        cortex_m::asm::delay(DIR_SETUP_CYCLES);
-    }
-
-    /// One STEP pulse. Busy-waits a few microseconds: shorter than any await would be.
-    fn step(&mut self, axis: Axis) {
-        if let Some(pin) = self.pins.step.get_mut(axis.index()) {
-            pin.set_high();
-            cortex_m::asm::delay(STEP_PULSE_CYCLES);
-            pin.set_low();
-        }
-    }
-
-    fn limit_closed(&self, axis: Axis) -> bool {
-        self.pins.limit.get(axis.index()).is_some_and(Input::is_low)
+    fn switch_closed(&self, axis: Axis) -> bool {
+        self.limit.get(axis.index()).is_some_and(ExtiInput::is_low)
     }
 
     fn start_exposure(&mut self, exposure_us: u32) {

@@ -3,8 +3,9 @@
 //! Glue only: the controller (link, plan streaming, homing, stepping, measurement) is
 //! `gonio_firmware::Device`, driven here exactly as the host test bench drives it
 //! (`firmware/tests/common/mod.rs`): bytes from USB go into `Device::receive`, `Device::poll` runs
-//! whenever `Device::next_deadline_us` has passed or bytes arrived, and the outbox goes back to USB.
-//! The board's pins are `board::BoardHal`.
+//! through `QueuedHal::run` (the controller ahead of real time, its steps queued for the TIM2
+//! interrupt: `gonio_firmware::timed`), and the outbox goes back to USB. The board's pins,
+//! interrupts and detector are in `board`.
 //!
 //! Tasks:
 //! - `usb_task` runs the USB device stack;
@@ -18,13 +19,15 @@
 
 mod board;
 
-use board::{AxisPins, BoardHal, Detector, SYSCLK_HZ};
+use board::{AxisPins, BoardIo, CsQueue, Detector, SYSCLK_HZ};
 use defmt::{info, warn};
+use defmt_rtt as _;
 use embassy_executor::Spawner;
 use embassy_futures::select::{select3, Either3};
 use embassy_futures::yield_now;
 use embassy_stm32::adc::{Adc, AdcChannel};
-use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
+use embassy_stm32::exti::{ExtiInput, TriggerEdge};
+use embassy_stm32::gpio::{Level, Output, Pull, Speed};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::usb::{self, Driver};
 use embassy_stm32::{bind_interrupts, peripherals, Config};
@@ -34,10 +37,22 @@ use embassy_time::{Instant, Timer};
 use embassy_usb::class::cdc_acm::{CdcAcmClass, Receiver, Sender, State};
 use embassy_usb::driver::EndpointError;
 use embassy_usb::{Builder, UsbDevice};
-use gonio_firmware::{Device, Hal};
+use gonio_firmware::timed::{QueuedHal, SharedQueue};
+use gonio_firmware::Device;
 use gonio_shared::msg::{ControllerState, Fault};
 use static_cell::{ConstStaticCell, StaticCell};
-use {defmt_rtt as _, panic_probe as _};
+
+/// Log where, then stop in a `udf` the probe reports as a HardFault. The panic *message* is not
+/// printed: formatting it would link `core::fmt` (~3 KiB of a flash budget with none to spare),
+/// and no panic can come from wire data (the logic crate's rule), only from start-up `expect`s.
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    match info.location() {
+        Some(l) => defmt::error!("panic at {=str}:{=u32}", l.file(), l.line()),
+        None => defmt::error!("panic"),
+    }
+    cortex_m::asm::udf()
+}
 
 bind_interrupts!(struct Irqs {
     OTG_FS => usb::InterruptHandler<peripherals::USB_OTG_FS>;
@@ -93,7 +108,8 @@ async fn main(spawner: Spawner) {
     let led = Output::new(p.PC13, Level::High, Speed::Low);
 
     // Steppers (README pin table), indexed by `Axis::index`: light, detector, tilt, azimuth.
-    // STEP idles low and pulses high; ENABLE is active low and driven active from here on.
+    // STEP idles low and pulses high (driven by the TIM2 interrupt); ENABLE is active low and
+    // driven active from here on.
     let pins = AxisPins {
         step: [
             Output::new(p.PB0, Level::Low, Speed::Medium),
@@ -113,14 +129,15 @@ async fn main(spawner: Spawner) {
             Output::new(p.PB4, Level::Low, Speed::Low),
             Output::new(p.PA15, Level::Low, Speed::Low),
         ],
-        // Switches to GND, closed = low.
-        limit: [
-            Input::new(p.PA1, Pull::Up),
-            Input::new(p.PA2, Pull::Up),
-            Input::new(p.PA3, Pull::Up),
-            Input::new(p.PB5, Pull::Up),
-        ],
     };
+    // Switches to GND, closed = low: a falling edge is a switch closing. Our own EXTI handlers
+    // (board.rs) stop the step timer; embassy's async EXTI would only wake a task.
+    let limit = [
+        ExtiInput::new_blocking(p.PA1, p.EXTI1, Pull::Up, TriggerEdge::Falling),
+        ExtiInput::new_blocking(p.PA2, p.EXTI2, Pull::Up, TriggerEdge::Falling),
+        ExtiInput::new_blocking(p.PA3, p.EXTI3, Pull::Up, TriggerEdge::Falling),
+        ExtiInput::new_blocking(p.PB5, p.EXTI5, Pull::Up, TriggerEdge::Falling),
+    ];
     // Internal-ADC detector: ADC1_IN4..IN7 on PA4..PA7, channel order = readout order.
     let detector = Detector {
         adc: Adc::new(p.ADC1),
@@ -131,7 +148,8 @@ async fn main(spawner: Spawner) {
             p.PA7.degrade_adc(),
         ],
     };
-    let hal = BoardHal::new(pins, detector);
+    board::start_step_timer(p.TIM2);
+    let hal = QueuedHal::new(BoardIo::new(pins, limit, detector), CsQueue);
 
     // The controller (~20 KiB). `Device::new()` is const and all-zero, so this static lands in .bss
     // (zeroed by the runtime, no flash image, no copy through the stack); `StaticCell::init_with`
@@ -176,10 +194,19 @@ async fn main(spawner: Spawner) {
     let (sender, receiver) = class.split();
     let usb = builder.build();
 
-    spawner.spawn(usb_task(usb).expect("spawn usb_task"));
-    spawner.spawn(usb_tx_task(sender).expect("spawn usb_tx_task"));
-    spawner.spawn(controller_task(device, hal, receiver).expect("spawn controller_task"));
-    spawner.spawn(blink(led).expect("spawn blink"));
+    spawner.spawn(spawned(usb_task(usb), "usb_task"));
+    spawner.spawn(spawned(usb_tx_task(sender), "usb_tx_task"));
+    spawner.spawn(spawned(controller_task(device, hal, receiver), "controller_task"));
+    spawner.spawn(spawned(blink(led), "blink"));
+}
+
+/// A task's spawn token, or a logged halt at boot. Not `expect`: its `Debug` formatting of the
+/// error would link `core::fmt`.
+fn spawned<T, E>(token: Result<T, E>, name: &str) -> T {
+    match token {
+        Ok(t) => t,
+        Err(_) => defmt::panic!("cannot spawn {=str}", name),
+    }
 }
 
 #[embassy_executor::task]
@@ -276,7 +303,7 @@ impl Staged {
 #[embassy_executor::task]
 async fn controller_task(
     device: &'static mut Device,
-    mut hal: BoardHal,
+    mut hal: QueuedHal<BoardIo, CsQueue>,
     mut receiver: Receiver<'static, UsbDriver>,
 ) -> ! {
     let mut rx = [0u8; USB_PACKET];
@@ -294,12 +321,10 @@ async fn controller_task(
         if let Some(bytes) = rx.get(rx_start..rx_end).filter(|b| !b.is_empty()) {
             let n = device.receive(&mut hal, bytes);
             rx_start = rx_start.saturating_add(n);
-            device.poll(&mut hal);
         }
-        if device.next_deadline_us().is_some_and(|t| t <= hal.now_us()) {
-            device.poll(&mut hal);
-        }
-        seen.log_changes(device);
+        // Everything due (and, while moving, the next `LOOKAHEAD_US` of steps into the queue).
+        let wake = hal.run(device);
+        seen.log_changes(device, &hal);
         staged.pump(device);
 
         let rx_idle = rx_start >= rx_end;
@@ -309,7 +334,7 @@ async fn controller_task(
             yield_now().await;
             continue;
         }
-        let deadline = device.next_deadline_us().map_or(Instant::MAX, Instant::from_micros);
+        let deadline = wake.map_or(Instant::MAX, Instant::from_micros);
         let event = select3(
             async {
                 if rx_idle {
@@ -355,6 +380,7 @@ async fn controller_task(
 struct Seen {
     state: ControllerState,
     fault: Option<Fault>,
+    overruns: u32,
 }
 
 impl Seen {
@@ -362,14 +388,26 @@ impl Seen {
         Self {
             state: device.controller().state(),
             fault: device.controller().last_fault(),
+            overruns: 0,
         }
     }
 
-    fn log_changes(&mut self, device: &Device) {
+    /// State changes, faults, and a step queue overrun (a bug: the loop keeps room for a poll's
+    /// events) or late steps (the loop fell behind the lookahead), once per change of the count
+    /// at a state change, so nothing is logged per step.
+    fn log_changes(&mut self, device: &Device, hal: &QueuedHal<BoardIo, CsQueue>) {
         let state = device.controller().state();
         if state != self.state {
             info!("state {=str} -> {=str}", state_name(self.state), state_name(state));
             self.state = state;
+            let stats = hal.queue.with(|q| q.stats());
+            if stats.overruns.wrapping_add(stats.late) != self.overruns {
+                warn!(
+                    "step queue: {=u32} overruns, {=u32} late steps",
+                    stats.overruns, stats.late
+                );
+                self.overruns = stats.overruns.wrapping_add(stats.late);
+            }
         }
         let fault = device.controller().last_fault();
         if fault != self.fault {
@@ -401,7 +439,6 @@ fn fault_name(f: Fault) -> &'static str {
         Fault::Unreachable { .. } => "unreachable direction",
         Fault::BufferOverflow => "buffer overflow",
         Fault::BadFrame => "too many bad frames",
-        Fault::NotHomed => "not homed",
         Fault::DetectorTimeout => "detector timeout",
         Fault::HomeNotFound(_) => "home not found",
     }

@@ -1,0 +1,360 @@
+//! The board's step path, simulated: the controller runs ahead of real time through `QueuedHal`,
+//! a simulated timer interrupt plays the `StepQueue` back at its wake-ups, and the motors' true
+//! positions come only from the played STEP edges and DIR levels. Switches close on those true
+//! positions and raise the EXTI trip as the board's interrupt does.
+//!
+//! Checks: the controller's positions equal the true ones after homing (found by EXTI trips) and at
+//! every measurement; the queue never runs dry (no event played late) at full speed on the reference
+//! instrument; a limit switch stops playback at the instant it closes and faults.
+
+mod common;
+
+use common::*;
+use gonio_firmware::step_queue::{QueueStats, StepQueue};
+use gonio_firmware::timed::{tick, Board, QueuedHal, SharedQueue};
+use gonio_firmware::{Device, Readout};
+use gonio_shared::frame::{Frame, FrameDecoder};
+use gonio_shared::instrument::{InstrumentConfig, AXES};
+use gonio_shared::msg::{ControllerState, DeviceMsg, Direction, Fault, Hello, HostMsg, Measurement, PlanChunk};
+use gonio_shared::Axis;
+use std::cell::RefCell;
+
+struct SimBoard {
+    real: u64,
+    /// True positions and DIR levels, from played events only.
+    pos: [i64; 4],
+    dir: [bool; 4],
+    switches: [SwitchModel; 4],
+    forced: u8,
+    exposure_done: Option<u64>,
+    exposures: u32,
+}
+
+impl Board for SimBoard {
+    fn now_us(&self) -> u64 {
+        self.real
+    }
+    fn switch_closed(&self, axis: Axis) -> bool {
+        let i = axis.index();
+        self.forced & (1 << i) != 0 || self.switches[i].closed(self.pos[i])
+    }
+    fn start_exposure(&mut self, exposure_us: u32) {
+        self.exposures += 1;
+        self.exposure_done = Some(self.real + exposure_us as u64);
+    }
+    fn poll_readout(&mut self) -> Option<Readout> {
+        let done = self.exposure_done?;
+        if self.real < done {
+            return None;
+        }
+        self.exposure_done = None;
+        let mut r = Readout::new();
+        r.push(self.exposures).unwrap();
+        Some(r)
+    }
+}
+
+struct Shared(RefCell<StepQueue>);
+
+impl SharedQueue for Shared {
+    fn with<R>(&self, f: impl FnOnce(&mut StepQueue) -> R) -> R {
+        f(&mut self.0.borrow_mut())
+    }
+}
+
+struct Sim {
+    dev: Box<Device>,
+    hal: QueuedHal<SimBoard, Shared>,
+    run_at: Option<u64>,
+    host_seq: u16,
+    dec: FrameDecoder,
+    log: Vec<DeviceMsg>,
+    /// (real time, axis) of every rising STEP edge.
+    edges: Vec<(u64, Axis)>,
+    /// True positions when each measurement's exposure started.
+    at_exposure: Vec<[i64; 4]>,
+}
+
+impl Sim {
+    fn new(cfg: InstrumentConfig<f32>, start: [i64; 4]) -> Self {
+        let switches = MockHal::new(&cfg).switches;
+        let board = SimBoard {
+            real: 0,
+            pos: start,
+            dir: [true; 4],
+            switches,
+            forced: 0,
+            exposure_done: None,
+            exposures: 0,
+        };
+        let mut s = Self {
+            dev: Box::new(Device::new()),
+            hal: QueuedHal::new(board, Shared(RefCell::new(StepQueue::new()))),
+            run_at: Some(0),
+            host_seq: 0,
+            dec: FrameDecoder::new(),
+            log: Vec::new(),
+            edges: Vec::new(),
+            at_exposure: Vec::new(),
+        };
+        s.send(HostMsg::Hello(Hello::OURS));
+        s.send(HostMsg::Configure(cfg));
+        s
+    }
+
+    fn collect(&mut self) {
+        let mut buf = [0u8; 256];
+        loop {
+            let n = self.dev.drain_outbox(&mut buf);
+            if n == 0 {
+                return;
+            }
+            for &b in &buf[..n] {
+                if let Some(Ok(Frame { msg, .. })) = self.dec.push::<DeviceMsg>(b) {
+                    self.log.push(msg);
+                }
+            }
+        }
+    }
+
+    fn send(&mut self, msg: HostMsg) {
+        let f = frame(self.host_seq, &msg);
+        self.host_seq = self.host_seq.wrapping_add(1);
+        let mut rest = &f[..];
+        while !rest.is_empty() {
+            let n = self.dev.receive(&mut self.hal, rest);
+            rest = &rest[n..];
+            self.collect();
+        }
+        self.run_at = self.hal.run(&mut self.dev);
+        self.collect();
+    }
+
+    fn stats(&self) -> QueueStats {
+        self.hal.queue.with(|q| q.stats())
+    }
+
+    /// The timer interrupt's next wake-up, as real time.
+    fn isr_at(&self) -> Option<u64> {
+        let now = self.hal.board.real;
+        let w = self.hal.queue.with(|q| q.next_wake(tick(now)))?;
+        let ahead = w.wrapping_sub(tick(now));
+        Some(if ahead >= 1 << 31 { now } else { now + ahead as u64 })
+    }
+
+    fn isr(&mut self) {
+        let now = self.hal.board.real;
+        let late0 = self.stats().late;
+        let (pins, _) = self.hal.queue.with(|q| q.service(tick(now)));
+        if std::env::var("SIM_DEBUG").is_ok() && self.stats().late != late0 {
+            eprintln!(
+                "late at {now}: {pins:?} state {:?} sched {}",
+                self.dev.controller().state(),
+                self.hal.schedule_us()
+            );
+        }
+        let b = &mut self.hal.board;
+        for axis in AXES {
+            let (i, bit) = (axis.index(), 1u8 << axis.index());
+            if pins.dir_increasing & bit != 0 {
+                b.dir[i] = true;
+            }
+            if pins.dir_decreasing & bit != 0 {
+                b.dir[i] = false;
+            }
+        }
+        let mut closed_now = 0u8;
+        for axis in AXES {
+            let (i, bit) = (axis.index(), 1u8 << axis.index());
+            if pins.step_high & bit != 0 {
+                let was = self.hal.board.switch_closed(axis);
+                let b = &mut self.hal.board;
+                b.pos[i] += if b.dir[i] { 1 } else { -1 };
+                self.edges.push((now, axis));
+                if !was && self.hal.board.switch_closed(axis) {
+                    closed_now |= bit;
+                }
+            }
+        }
+        if closed_now != 0 {
+            // The EXTI interrupt: a closing edge.
+            self.hal.queue.with(|q| q.trip(closed_now, tick(now)));
+        }
+    }
+
+    /// Run until nothing is scheduled or `until` (real time); a switch forced closed at `force`.
+    fn run_until(&mut self, until: u64, mut force: Option<(u64, Axis)>) {
+        let (mut last_t, mut same) = (u64::MAX, 0u32);
+        loop {
+            let isr = self.isr_at();
+            let next = [isr, self.run_at, force.map(|f| f.0)].into_iter().flatten().min();
+            let Some(t) = next else { return };
+            if t > until {
+                return;
+            }
+            // Neither the timer nor the loop may spin at one instant.
+            same = if t == last_t { same + 1 } else { 0 };
+            last_t = t;
+            assert!(same < 1_000, "stuck at t = {t} us: {:?}", self.stats());
+            self.hal.board.real = self.hal.board.real.max(t);
+            if let Some((at, axis)) = force.filter(|f| f.0 <= t) {
+                force = None;
+                let bit = 1u8 << axis.index();
+                self.hal.board.forced |= bit;
+                self.hal.queue.with(|q| q.trip(bit, tick(at)));
+                continue;
+            }
+            if isr.is_some_and(|w| w <= t) {
+                self.isr();
+            }
+            if self.run_at.is_some_and(|r| r <= t) {
+                let exposures = self.hal.board.exposures;
+                self.run_at = self.hal.run(&mut self.dev);
+                if self.hal.board.exposures > exposures {
+                    self.at_exposure.push(self.hal.board.pos);
+                }
+                self.collect();
+            }
+        }
+    }
+
+    fn home(&mut self) {
+        self.send(HostMsg::Home);
+        self.run_until(u64::MAX, None);
+        assert_eq!(
+            self.dev.controller().state(),
+            ControllerState::Ready,
+            "{:?}",
+            self.dev.controller().last_fault()
+        );
+    }
+
+    fn plan(&mut self, dirs: &[Direction]) {
+        let mut directions = heapless::Vec::new();
+        for d in dirs {
+            directions.push(*d).unwrap();
+        }
+        self.send(HostMsg::Plan(PlanChunk {
+            first_index: 0,
+            directions,
+        }));
+        self.send(HostMsg::PlanEnd {
+            total: dirs.len() as u32,
+        });
+    }
+
+    fn measurements(&self) -> Vec<Measurement> {
+        self.log
+            .iter()
+            .filter_map(|m| match m {
+                DeviceMsg::Measurement(m) => Some(m.clone()),
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// Controller positions equal the true ones (continuous axes modulo a turn).
+    fn assert_positions_true(&self, cfg: &InstrumentConfig<f32>, fw: [i32; 4], truth: [i64; 4], what: &str) {
+        for axis in AXES {
+            let i = axis.index();
+            if cfg.axis(axis).continuous {
+                let rev = steps_per_rev(cfg, axis);
+                assert_eq!((truth[i] - fw[i] as i64).rem_euclid(rev), 0, "{axis:?} {what}");
+            } else {
+                assert_eq!(truth[i], fw[i] as i64, "{axis:?} {what}");
+            }
+        }
+    }
+}
+
+#[test]
+fn homing_by_exti_trips_and_a_scan_keep_true_positions() {
+    let cfg = coarse_config();
+    for start in [[0, 0, 0, 0], [-60, 150, 40, 333], [250, -250, -60, -50]] {
+        let mut sim = Sim::new(cfg, start);
+        sim.home();
+        let what = format!("after homing from {start:?}");
+        sim.assert_positions_true(&cfg, sim.dev.controller().position(), sim.hal.board.pos, &what);
+        assert!(sim.stats().flushed > 0 || sim.stats().steps > 0);
+        let dirs = [
+            dir_deg(60.0, 0.0, 20.0, 180.0),
+            dir_deg(10.0, 0.0, 70.0, 180.0),
+            dir_deg(45.0, 0.0, 30.0, 90.0),
+            dir_deg(20.0, 0.0, 50.0, -120.0),
+        ];
+        sim.plan(&dirs);
+        sim.send(HostMsg::Start);
+        sim.run_until(u64::MAX, None);
+        assert_eq!(sim.dev.controller().state(), ControllerState::Done);
+        let ms = sim.measurements();
+        assert_eq!(ms.len(), dirs.len());
+        assert_eq!(sim.at_exposure.len(), dirs.len());
+        for (m, truth) in ms.iter().zip(&sim.at_exposure) {
+            sim.assert_positions_true(&cfg, m.steps, *truth, &format!("at measurement {}", m.index));
+        }
+        let st = sim.stats();
+        assert_eq!((st.overruns, st.late), (0, 0), "{st:?}");
+    }
+}
+
+#[test]
+fn the_queue_keeps_ahead_at_full_speed_on_the_reference_instrument() {
+    let cfg = InstrumentConfig::<f32>::reference();
+    let mut sim = Sim::new(cfg, [0; 4]);
+    sim.home();
+    let homing_edges = sim.edges.len();
+    // A long move of all four axes at once.
+    sim.plan(&[dir_deg(70.0, 0.0, 10.0, 90.0), dir_deg(10.0, 0.0, 70.0, -90.0)]);
+    sim.send(HostMsg::Start);
+    sim.run_until(u64::MAX, None);
+    assert_eq!(sim.dev.controller().state(), ControllerState::Done);
+    let st = sim.stats();
+    assert_eq!((st.overruns, st.late), (0, 0), "{st:?}");
+    let scan_edges = &sim.edges[homing_edges..];
+    // The fastest arm interval seen: the reference arms run at full speed (tens of kHz).
+    let light: Vec<u64> = scan_edges.iter().filter(|e| e.1 == Axis::Light).map(|e| e.0).collect();
+    let min_dt = light.windows(2).map(|w| w[1] - w[0]).min().unwrap();
+    assert!(min_dt <= 100, "light arm never faster than {min_dt} us per step");
+    for (m, truth) in sim.measurements().iter().zip(&sim.at_exposure) {
+        sim.assert_positions_true(&cfg, m.steps, *truth, "reference scan");
+    }
+}
+
+#[test]
+fn a_limit_switch_stops_playback_at_the_instant_it_closes_and_faults() {
+    // The reference instrument, so that the queue holds many steps when the switch closes.
+    let cfg = InstrumentConfig::<f32>::reference();
+    let mut sim = Sim::new(cfg, [0; 4]);
+    sim.home();
+    sim.plan(&[dir_deg(70.0, 0.0, 10.0, 90.0), dir_deg(10.0, 0.0, 70.0, -90.0)]);
+    sim.send(HostMsg::Start);
+    // Let the first move get going, then close the tilt switch mid-move.
+    let t0 = sim.hal.board.real;
+    sim.run_until(t0 + 300_000, None);
+    let queued = sim.hal.queue.with(|q| q.len());
+    assert!(queued > 20, "only {queued} events queued");
+    let moving_edges = sim.edges.len();
+    assert!(moving_edges > 0 && sim.dev.controller().is_moving());
+    let t_close = sim.hal.board.real + 1;
+    sim.run_until(t_close, Some((t_close, Axis::Tilt)));
+    assert_eq!(sim.hal.queue.with(|q| q.tripped()), 1 << Axis::Tilt.index());
+    // On the board the switch interrupt can fire in the middle of a poll: what that poll queues
+    // after the trip belongs to the halted move and must never play.
+    for axis in [Axis::Light, Axis::Detector] {
+        gonio_firmware::Hal::step(&mut sim.hal, axis);
+    }
+    sim.run_until(u64::MAX, None);
+    assert!(
+        sim.edges.iter().all(|&(t, _)| t <= t_close),
+        "a step after the switch closed"
+    );
+    assert!(sim.stats().flushed > 0, "queued steps were dropped: {:?}", sim.stats());
+    assert!(
+        sim.log.contains(&DeviceMsg::Fault(Fault::LimitSwitch(Axis::Tilt))),
+        "{:?}",
+        sim.log
+    );
+    assert_eq!(sim.dev.controller().state(), ControllerState::Fault);
+    assert!(!sim.dev.controller().homed());
+    assert!(sim.measurements().is_empty());
+}
