@@ -4,5 +4,8 @@
 pub mod brdf;
 pub mod fsio;
 pub mod instrument;
+pub mod journal;
+pub mod link;
 pub mod plan;
 pub mod render;
+pub mod sim;

@@ -1,0 +1,258 @@
+//! Byte transports under the link: a serial port (a board, or the virtual gonio's pty) and a
+//! seeded fault injector that wraps any transport.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::collections::VecDeque;
+use std::io;
+use std::time::{Duration, Instant};
+
+/// A byte pipe with a read timeout. `read` returns `Ok(0)` when the timeout passed with nothing to
+/// read; a port that went away is an error.
+pub trait Transport: Send {
+    fn write_all(&mut self, bytes: &[u8]) -> io::Result<()>;
+    fn read(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize>;
+}
+
+impl<T: Transport + ?Sized> Transport for Box<T> {
+    fn write_all(&mut self, bytes: &[u8]) -> io::Result<()> {
+        (**self).write_all(bytes)
+    }
+    fn read(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize> {
+        (**self).read(buf, timeout)
+    }
+}
+
+/// A serial port through the `serialport` crate (USB CDC-ACM, a UART adapter, a pty).
+pub struct SerialTransport {
+    port: Box<dyn serialport::SerialPort>,
+}
+
+/// Baud rate asked of the port (meaningless for USB CDC and ptys; what a UART bridge would run).
+pub const BAUD: u32 = 921_600;
+
+impl SerialTransport {
+    /// Open `path`, drop whatever it buffered from before us (a previous session's frames).
+    pub fn open(path: &str) -> io::Result<Self> {
+        let port = serialport::new(path, BAUD)
+            .timeout(Duration::from_millis(10))
+            .open()
+            .map_err(io::Error::from)?;
+        let _ = port.clear(serialport::ClearBuffer::All);
+        Ok(Self { port })
+    }
+}
+
+impl Transport for SerialTransport {
+    fn write_all(&mut self, bytes: &[u8]) -> io::Result<()> {
+        io::Write::write_all(&mut self.port, bytes)?;
+        io::Write::flush(&mut self.port)
+    }
+
+    fn read(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize> {
+        self.port
+            .set_timeout(timeout.max(Duration::from_millis(1)))
+            .map_err(io::Error::from)?;
+        match io::Read::read(&mut self.port, buf) {
+            // After poll() said readable, 0 bytes means the other end hung up.
+            Ok(0) => Err(io::Error::new(io::ErrorKind::ConnectionAborted, "the port hung up")),
+            Ok(n) => Ok(n),
+            Err(e) if matches!(e.kind(), io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock | io::ErrorKind::Interrupted) => Ok(0),
+            Err(e) => Err(e),
+        }
+    }
+}
+
+/// Probabilities (0..=1) of what happens to each frame, and in which directions.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FaultConfig {
+    pub drop: f64,
+    pub corrupt: f64,
+    pub duplicate: f64,
+    pub delay: f64,
+    /// How long a delayed frame is held (it is overtaken by the frames after it).
+    pub delay_by: Duration,
+    pub host_to_device: bool,
+    pub device_to_host: bool,
+    pub seed: u64,
+}
+
+impl FaultConfig {
+    pub const NONE: FaultConfig = FaultConfig {
+        drop: 0.0,
+        corrupt: 0.0,
+        duplicate: 0.0,
+        delay: 0.0,
+        delay_by: Duration::from_millis(20),
+        host_to_device: true,
+        device_to_host: true,
+        seed: 1,
+    };
+}
+
+/// What the injector did, per direction.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FaultCounts {
+    pub frames: u64,
+    pub dropped: u64,
+    pub corrupted: u64,
+    pub duplicated: u64,
+    pub delayed: u64,
+}
+
+/// One direction of the injector: cuts the byte stream into frames at the 0x00 delimiters and
+/// decides each frame's fate.
+struct FaultLane {
+    enabled: bool,
+    partial: Vec<u8>,
+    held: VecDeque<(Instant, Vec<u8>)>,
+    counts: FaultCounts,
+}
+
+impl FaultLane {
+    fn new(enabled: bool) -> Self {
+        Self {
+            enabled,
+            partial: Vec::new(),
+            held: VecDeque::new(),
+            counts: FaultCounts::default(),
+        }
+    }
+
+    /// Bytes in; the bytes to pass on now out.
+    fn process(&mut self, bytes: &[u8], cfg: &FaultConfig, rng: &mut ChaCha8Rng, out: &mut Vec<u8>) {
+        if !self.enabled {
+            out.extend_from_slice(bytes);
+            return;
+        }
+        for &b in bytes {
+            self.partial.push(b);
+            if b != 0 {
+                continue;
+            }
+            let mut frame = std::mem::take(&mut self.partial);
+            self.counts.frames += 1;
+            let r: f64 = rng.random();
+            let mut edge = cfg.drop;
+            if r < edge {
+                self.counts.dropped += 1;
+                continue;
+            }
+            edge += cfg.corrupt;
+            if r < edge {
+                self.counts.corrupted += 1;
+                if frame.len() > 1 {
+                    let i = rng.random_range(0..frame.len() - 1);
+                    let bit = rng.random_range(0..8u32);
+                    if let Some(x) = frame.get_mut(i) {
+                        *x ^= 1 << bit;
+                    }
+                }
+                out.extend_from_slice(&frame);
+                continue;
+            }
+            edge += cfg.duplicate;
+            if r < edge {
+                self.counts.duplicated += 1;
+                out.extend_from_slice(&frame);
+                out.extend_from_slice(&frame);
+                continue;
+            }
+            edge += cfg.delay;
+            if r < edge {
+                self.counts.delayed += 1;
+                self.held.push_back((Instant::now() + cfg.delay_by, frame));
+                continue;
+            }
+            out.extend_from_slice(&frame);
+        }
+    }
+
+    fn release_due(&mut self, out: &mut Vec<u8>) {
+        let now = Instant::now();
+        while self.held.front().is_some_and(|(t, _)| *t <= now) {
+            if let Some((_, f)) = self.held.pop_front() {
+                out.extend_from_slice(&f);
+            }
+        }
+    }
+}
+
+/// A transport that drops, corrupts, duplicates and delays whole frames, seeded.
+pub struct FaultyTransport<T> {
+    inner: T,
+    cfg: FaultConfig,
+    rng: ChaCha8Rng,
+    tx: FaultLane,
+    rx: FaultLane,
+    ready: VecDeque<u8>,
+}
+
+impl<T: Transport> FaultyTransport<T> {
+    pub fn new(inner: T, cfg: FaultConfig) -> Self {
+        Self {
+            inner,
+            rng: ChaCha8Rng::seed_from_u64(cfg.seed),
+            tx: FaultLane::new(cfg.host_to_device),
+            rx: FaultLane::new(cfg.device_to_host),
+            cfg,
+            ready: VecDeque::new(),
+        }
+    }
+
+    /// (host -> device, device -> host) counts.
+    pub fn counts(&self) -> (FaultCounts, FaultCounts) {
+        (self.tx.counts, self.rx.counts)
+    }
+
+    fn flush_tx(&mut self) -> io::Result<()> {
+        let mut out = Vec::new();
+        self.tx.release_due(&mut out);
+        if out.is_empty() {
+            Ok(())
+        } else {
+            self.inner.write_all(&out)
+        }
+    }
+}
+
+impl<T: Transport> Transport for FaultyTransport<T> {
+    fn write_all(&mut self, bytes: &[u8]) -> io::Result<()> {
+        let mut out = Vec::new();
+        self.tx.process(bytes, &self.cfg, &mut self.rng, &mut out);
+        self.tx.release_due(&mut out);
+        self.inner.write_all(&out)
+    }
+
+    fn read(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize> {
+        self.flush_tx()?;
+        let deadline = Instant::now() + timeout;
+        loop {
+            let mut released = Vec::new();
+            self.rx.release_due(&mut released);
+            self.ready.extend(released);
+            if !self.ready.is_empty() {
+                let n = buf.len().min(self.ready.len());
+                for (slot, b) in buf.iter_mut().zip(self.ready.drain(..n)) {
+                    *slot = b;
+                }
+                return Ok(n);
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                return Ok(0);
+            }
+            // Wake for a held frame's release even if the wire stays quiet.
+            let mut wait = deadline - now;
+            if let Some((t, _)) = self.rx.held.front() {
+                wait = wait.min(t.saturating_duration_since(now).max(Duration::from_millis(1)));
+            }
+            let mut tmp = [0u8; 1024];
+            let n = self.inner.read(&mut tmp, wait)?;
+            let mut out = Vec::new();
+            self.rx.process(tmp.get(..n).unwrap_or(&[]), &self.cfg, &mut self.rng, &mut out);
+            self.ready.extend(out);
+            self.flush_tx()?;
+        }
+    }
+}
