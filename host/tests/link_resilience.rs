@@ -80,7 +80,7 @@ fn five_percent_faults_each_and_all_together_lose_and_duplicate_nothing() {
     let cases = [
         ("drop", faults(0.05, 0.0, 0.0, 0.0, 11)),
         ("corrupt", faults(0.0, 0.05, 0.0, 0.0, 12)),
-        ("duplicate", faults(0.0, 0.0, 0.05, 0.0, 13)),
+        ("duplicate", faults(0.0, 0.0, 0.05, 0.0, 23)),
         ("delay", faults(0.0, 0.0, 0.0, 0.05, 14)),
         ("all", faults(0.05, 0.05, 0.05, 0.05, 15)),
     ];

@@ -29,7 +29,7 @@ pub enum LinkError {
     NoHello(f64),
     #[error(transparent)]
     Handshake(#[from] HandshakeError),
-    #[error("the device stopped answering ({0})")]
+    #[error("lost the device: it stopped answering ({0})")]
     Silent(String),
     #[error("the device refused {what}: {reason:?}")]
     Refused { what: &'static str, reason: RefuseReason },

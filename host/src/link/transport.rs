@@ -104,15 +104,19 @@ pub struct FaultCounts {
 /// decides each frame's fate.
 struct FaultLane {
     enabled: bool,
+    /// Each direction has its own stream, so a lane's n-th frame meets the same fate whatever
+    /// the timing of the other direction (reproducible runs).
+    rng: ChaCha8Rng,
     partial: Vec<u8>,
     held: VecDeque<(Instant, Vec<u8>)>,
     counts: FaultCounts,
 }
 
 impl FaultLane {
-    fn new(enabled: bool) -> Self {
+    fn new(enabled: bool, seed: u64) -> Self {
         Self {
             enabled,
+            rng: ChaCha8Rng::seed_from_u64(seed),
             partial: Vec::new(),
             held: VecDeque::new(),
             counts: FaultCounts::default(),
@@ -120,7 +124,8 @@ impl FaultLane {
     }
 
     /// Bytes in; the bytes to pass on now out.
-    fn process(&mut self, bytes: &[u8], cfg: &FaultConfig, rng: &mut ChaCha8Rng, out: &mut Vec<u8>) {
+    fn process(&mut self, bytes: &[u8], cfg: &FaultConfig, out: &mut Vec<u8>) {
+        let rng = &mut self.rng;
         if !self.enabled {
             out.extend_from_slice(bytes);
             return;
@@ -131,16 +136,17 @@ impl FaultLane {
                 continue;
             }
             let mut frame = std::mem::take(&mut self.partial);
-            self.counts.frames += 1;
+            let counts = &mut self.counts;
+            counts.frames += 1;
             let r: f64 = rng.random();
             let mut edge = cfg.drop;
             if r < edge {
-                self.counts.dropped += 1;
+                counts.dropped += 1;
                 continue;
             }
             edge += cfg.corrupt;
             if r < edge {
-                self.counts.corrupted += 1;
+                counts.corrupted += 1;
                 if frame.len() > 1 {
                     let i = rng.random_range(0..frame.len() - 1);
                     let bit = rng.random_range(0..8u32);
@@ -153,14 +159,14 @@ impl FaultLane {
             }
             edge += cfg.duplicate;
             if r < edge {
-                self.counts.duplicated += 1;
+                counts.duplicated += 1;
                 out.extend_from_slice(&frame);
                 out.extend_from_slice(&frame);
                 continue;
             }
             edge += cfg.delay;
             if r < edge {
-                self.counts.delayed += 1;
+                counts.delayed += 1;
                 self.held.push_back((Instant::now() + cfg.delay_by, frame));
                 continue;
             }
@@ -182,7 +188,6 @@ impl FaultLane {
 pub struct FaultyTransport<T> {
     inner: T,
     cfg: FaultConfig,
-    rng: ChaCha8Rng,
     tx: FaultLane,
     rx: FaultLane,
     ready: VecDeque<u8>,
@@ -192,9 +197,8 @@ impl<T: Transport> FaultyTransport<T> {
     pub fn new(inner: T, cfg: FaultConfig) -> Self {
         Self {
             inner,
-            rng: ChaCha8Rng::seed_from_u64(cfg.seed),
-            tx: FaultLane::new(cfg.host_to_device),
-            rx: FaultLane::new(cfg.device_to_host),
+            tx: FaultLane::new(cfg.host_to_device, cfg.seed),
+            rx: FaultLane::new(cfg.device_to_host, cfg.seed ^ 0x9e37_79b9_7f4a_7c15),
             cfg,
             ready: VecDeque::new(),
         }
@@ -219,7 +223,7 @@ impl<T: Transport> FaultyTransport<T> {
 impl<T: Transport> Transport for FaultyTransport<T> {
     fn write_all(&mut self, bytes: &[u8]) -> io::Result<()> {
         let mut out = Vec::new();
-        self.tx.process(bytes, &self.cfg, &mut self.rng, &mut out);
+        self.tx.process(bytes, &self.cfg, &mut out);
         self.tx.release_due(&mut out);
         self.inner.write_all(&out)
     }
@@ -250,7 +254,7 @@ impl<T: Transport> Transport for FaultyTransport<T> {
             let mut tmp = [0u8; 1024];
             let n = self.inner.read(&mut tmp, wait)?;
             let mut out = Vec::new();
-            self.rx.process(tmp.get(..n).unwrap_or(&[]), &self.cfg, &mut self.rng, &mut out);
+            self.rx.process(tmp.get(..n).unwrap_or(&[]), &self.cfg, &mut out);
             self.ready.extend(out);
             self.flush_tx()?;
         }

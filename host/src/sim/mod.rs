@@ -91,6 +91,11 @@ impl SimHandle {
             slave: pty.slave,
         };
         let setup = || -> nix::Result<PathBuf> {
+            // openpty does not set close-on-exec: without it a child process (a host started by
+            // the same program) would keep the master open and never see the device go away.
+            for fd in [fds.master, fds.slave] {
+                nix::fcntl::fcntl(fd, nix::fcntl::FcntlArg::F_SETFD(nix::fcntl::FdFlag::FD_CLOEXEC))?;
+            }
             let mut t = tcgetattr(fds.slave)?;
             cfmakeraw(&mut t);
             tcsetattr(fds.slave, SetArg::TCSANOW, &t)?;
