@@ -180,3 +180,65 @@ impl Hal for SimHal {
         Some(r)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn model(effects: &str) -> Arc<SimModel> {
+        let text = format!(
+            "[camera]\nkind = \"orthographic\"\nwidth = 8\nheight = 8\n[object]\nshape = \"sphere\"\nmaterial = \"lambert:albedo=0.5\"\n{effects}"
+        );
+        Arc::new(SimModel::from_toml(&text, Path::new("t.toml"), crate::instrument::default_instrument(), 0).unwrap())
+    }
+
+    fn steps(hal: &mut SimHal, axis: Axis, n: i64) {
+        hal.set_direction(axis, n > 0);
+        for _ in 0..n.abs() {
+            hal.step(axis);
+        }
+    }
+
+    #[test]
+    fn backlash_makes_the_output_lag_after_a_reversal() {
+        // 0.1 deg of play at 400 steps/deg = 40 steps of dead band.
+        let mut hal = SimHal::new(model("[effects]\nbacklash = { light_deg = 0.1 }\n"));
+        steps(&mut hal, Axis::Light, 200);
+        assert_eq!(hal.output_steps()[0], 180.0, "output trails the motor by half the band");
+        steps(&mut hal, Axis::Light, -30);
+        assert_eq!(hal.output_steps()[0], 180.0, "inside the dead band the output stands still");
+        steps(&mut hal, Axis::Light, -30);
+        assert_eq!(hal.output_steps()[0], 160.0);
+        // Without the effect the output is the motor.
+        let mut ideal = SimHal::new(model(""));
+        steps(&mut ideal, Axis::Light, 200);
+        steps(&mut ideal, Axis::Light, -30);
+        assert_eq!(ideal.output_steps()[0], 170.0);
+    }
+
+    #[test]
+    fn the_limit_fault_hook_closes_the_switch_once_after_its_readings() {
+        let mut hal = SimHal::new(model("[effects]\nlimit_fault = { axis = \"tilt\", after_readings = 1 }\n"));
+        steps(&mut hal, Axis::Tilt, 1);
+        assert!(!hal.limit_closed(Axis::Tilt));
+        hal.start_exposure(10);
+        hal.now_us = 10;
+        assert!(hal.poll_readout().is_some());
+        steps(&mut hal, Axis::Tilt, 1);
+        assert!(hal.limit_closed(Axis::Tilt));
+        assert!(!hal.limit_closed(Axis::Tilt), "one snag, not a stuck switch");
+    }
+
+    #[test]
+    fn readouts_come_when_the_exposure_ends() {
+        let mut hal = SimHal::new(model(""));
+        hal.start_exposure(1000);
+        assert!(hal.poll_readout().is_none());
+        hal.now_us = 999;
+        assert!(hal.poll_readout().is_none());
+        hal.now_us = 1000;
+        assert_eq!(hal.poll_readout().map(|r| r.len()), Some(3));
+        assert!(hal.poll_readout().is_none());
+    }
+}

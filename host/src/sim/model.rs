@@ -352,3 +352,130 @@ pub fn cone_directions(axis: DVec3, half: f64, n: usize) -> Vec<DVec3> {
         })
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gonio_shared::kinematics::Pose;
+
+    fn cfg() -> InstrumentConfig<f64> {
+        crate::instrument::default_instrument()
+    }
+
+    fn scene(material: &str, effects: &str) -> SimModel {
+        let text = format!(
+            "[camera]\nkind = \"orthographic\"\nwidth = 8\nheight = 8\n[object]\nshape = \"sphere\"\nmaterial = \"{material}\"\n{effects}"
+        );
+        SimModel::from_toml(&text, Path::new("t.toml"), cfg(), 3).unwrap()
+    }
+
+    /// A pose in the plane of incidence: wi at theta_i, wo at theta_o on the other side.
+    fn pose(theta_i_deg: f64, theta_o_deg: f64) -> Pose<f64> {
+        let m = scene("lambert:albedo=0.5", "");
+        let k = m.kinematics();
+        k.inverse_angles(
+            theta_i_deg.to_radians(),
+            0.0,
+            theta_o_deg.to_radians(),
+            std::f64::consts::PI,
+            &k.rest_pose(),
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn ideal_counts_follow_the_documented_formula() {
+        let m = scene("lambert:albedo=0.5", "");
+        let p = pose(30.0, 20.0);
+        let got = m.counts(&p, 10_000, 0.0, 0);
+        let d = DetectorModel::default();
+        let want = d.gain * d.irradiance_w_m2 * 30f64.to_radians().cos() * (0.5 / std::f64::consts::PI) * d.solid_angle_sr * 0.01;
+        assert_eq!(got.len(), 3);
+        for c in got {
+            assert!((f64::from(c) - want).abs() <= 1.0, "{c} vs {want}");
+        }
+        // Full scale clamps; dark level adds.
+        let bright = scene("lambert:albedo=0.5", "[detector]\ngain = 1e12\ndark_level = 5.0\n");
+        assert_eq!(bright.counts(&p, 10_000, 0.0, 0), vec![65_535; 3]);
+        let dark = scene("lambert:albedo=0.5", "[detector]\ngain = 0.0\ndark_level = 5.0\n");
+        assert_eq!(dark.counts(&p, 10_000, 0.0, 0), vec![5; 3]);
+    }
+
+    #[test]
+    fn misalignment_moves_the_true_pose() {
+        let ideal = scene("ggx:alpha=0.1", "");
+        let tilted = scene("ggx:alpha=0.1", "[effects]\nmisalignment = { tilt_deg = 2.0 }\n");
+        let steps = [1000.0, -1000.0, 0.0, 0.0];
+        let a = ideal.pose_at(&steps);
+        let b = tilted.pose_at(&steps);
+        assert!((b.tilt - a.tilt - 2f64.to_radians()).abs() < 1e-12);
+        assert_eq!(a.light, b.light);
+        // At the specular peak, the same step positions read less on the misaligned instrument.
+        let k = ideal.kinematics();
+        let p = pose(30.0, 30.0);
+        let at = k.to_steps(&p).unwrap().map(f64::from);
+        let peak = ideal.brdf_seen(&ideal.pose_at(&at)).0.x;
+        let off = tilted.brdf_seen(&tilted.pose_at(&at)).0.x;
+        assert!(off < 0.9 * peak, "{off} vs {peak}");
+    }
+
+    #[test]
+    fn aperture_averages_a_sharp_peak_down_and_leaves_lambert_alone() {
+        let p = pose(30.0, 30.0);
+        let sharp = scene("ggx:alpha=0.05", "").brdf_seen(&p).0.x;
+        let wide = scene("ggx:alpha=0.05", "[effects]\naperture = { half_angle_deg = 5.0, samples = 32 }\n")
+            .brdf_seen(&p)
+            .0
+            .x;
+        assert!(wide < 0.8 * sharp, "{wide} vs {sharp}");
+        let l0 = scene("lambert:albedo=0.5", "").brdf_seen(&p).0.x;
+        let l1 = scene("lambert:albedo=0.5", "[effects]\naperture = { half_angle_deg = 5.0 }\n")
+            .brdf_seen(&p)
+            .0
+            .x;
+        assert!((l0 - l1).abs() < 1e-12);
+        // The cone's directions are within the half angle.
+        let axis = DVec3::new(0.3, 0.1, 0.9).normalize();
+        for w in cone_directions(axis, 0.1, 50) {
+            assert!(w.dot(axis) >= 0.1f64.cos() - 1e-12);
+        }
+    }
+
+    #[test]
+    fn stray_light_adds_a_floor() {
+        let p = pose(30.0, 20.0);
+        let a = scene("lambert:albedo=0.5", "").brdf_seen(&p).0;
+        let b = scene("lambert:albedo=0.5", "[effects]\nstray_light = { brdf = 0.01 }\n").brdf_seen(&p).0;
+        assert!((b - a - DVec3::splat(0.01)).abs().max_element() < 1e-12);
+    }
+
+    #[test]
+    fn renderer_effects_apply_per_reading_and_repeat_for_the_same_key() {
+        let p = pose(30.0, 20.0);
+        let noisy = scene("lambert:albedo=0.5", "[effects]\nshot_noise = { photons_per_unit = 1.0 }\n");
+        let a = noisy.counts(&p, 10_000, 0.0, 7);
+        assert_eq!(a, noisy.counts(&p, 10_000, 0.0, 7), "same pose key, same noise");
+        let ideal = scene("lambert:albedo=0.5", "").counts(&p, 10_000, 0.0, 7);
+        let others: Vec<Vec<u32>> = (0..8).map(|k| noisy.counts(&p, 10_000, 0.0, k)).collect();
+        assert!(others.iter().any(|c| *c != ideal), "shot noise changed nothing");
+    }
+
+    #[test]
+    fn scene_errors_are_one_line_and_name_the_file() {
+        let bad = |text: &str| {
+            SimModel::from_toml(text, Path::new("s.toml"), cfg(), 0)
+                .unwrap_err()
+                .to_string()
+        };
+        let base = "[camera]\nkind = \"orthographic\"\nwidth = 8\nheight = 8\n[object]\nshape = \"sphere\"\n";
+        for (text, expect) in [
+            (format!("{base}material = \"ggx:alpha=x\"\n"), "s.toml"),
+            (format!("{base}material = \"lambert:albedo=0.5\"\n[detector]\ngain = -1.0\n"), "gain"),
+            (format!("{base}material = \"lambert:albedo=0.5\"\n[effects]\nbacklash = {{ tilt_deg = 90.0 }}\n"), "backlash"),
+            (format!("{base}material = \"lambert:albedo=0.5\"\n[effects]\nlimit_fault = {{ axis = \"elbow\", after_readings = 1 }}\n"), "elbow"),
+        ] {
+            let e = bad(&text);
+            assert!(e.contains(expect) && e.starts_with("scene s.toml") && !e.contains('\n'), "{e}");
+        }
+    }
+}
