@@ -177,3 +177,55 @@ fn bad_inputs_fail_with_one_line_and_write_nothing() {
     let _ = nix::unistd::close(pty.master);
     let _ = nix::unistd::close(pty.slave);
 }
+
+#[test]
+fn a_device_of_another_protocol_version_is_refused_with_a_clear_message() {
+    use gonio_shared::frame::{encode, FrameDecoder, MAX_WIRE_FRAME};
+    use gonio_shared::msg::{DeviceMsg, Hello, HostMsg};
+    let fx = Fixture::new(8, "");
+    let out = fx.path("out");
+    let pty = nix::pty::openpty(None, None).unwrap();
+    let mut t = nix::sys::termios::tcgetattr(pty.slave).unwrap();
+    nix::sys::termios::cfmakeraw(&mut t);
+    nix::sys::termios::tcsetattr(pty.slave, nix::sys::termios::SetArg::TCSANOW, &t).unwrap();
+    let path = nix::unistd::ttyname(pty.slave).unwrap();
+    let master = pty.master;
+    // A fake device that answers every Hello with a newer protocol.
+    let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let fake = {
+        let stop = stop.clone();
+        std::thread::spawn(move || {
+            let mut dec = FrameDecoder::new();
+            let mut buf = [0u8; 256];
+            while !stop.load(std::sync::atomic::Ordering::SeqCst) {
+                let mut pfd = [nix::poll::PollFd::new(master, nix::poll::PollFlags::POLLIN)];
+                if nix::poll::poll(&mut pfd, 20).unwrap_or(0) <= 0 {
+                    continue;
+                }
+                let Ok(n) = nix::unistd::read(master, &mut buf) else { continue };
+                for &b in &buf[..n] {
+                    if let Some(Ok(f)) = dec.push::<HostMsg>(b) {
+                        if let HostMsg::Hello(_) = f.msg {
+                            let theirs = Hello {
+                                protocol: Hello::OURS.protocol + 1,
+                                schema: Hello::OURS.schema,
+                            };
+                            let mut out = [0u8; MAX_WIRE_FRAME];
+                            let k = encode(0, &DeviceMsg::Hello(theirs), &mut out).unwrap();
+                            let _ = nix::unistd::write(master, &out[..k]);
+                        }
+                    }
+                }
+            }
+        })
+    };
+    assert_clean_failure(
+        &["measure", "--port", s(&path), "--plan", s(&fx.plan), "--instrument", s(&fx.instrument), "-o", s(&out)],
+        &out,
+        "protocol mismatch",
+    );
+    stop.store(true, std::sync::atomic::Ordering::SeqCst);
+    fake.join().unwrap();
+    let _ = nix::unistd::close(pty.master);
+    let _ = nix::unistd::close(pty.slave);
+}
