@@ -2,8 +2,9 @@
 //! gonio over its pseudo-terminal with a fast instrument (coarse steps, 100 us exposure, no
 //! settle), so the link and the firmware logic, not motion, set the pace.
 //!
-//!     cargo run -p gonio --example link_throughput [N] [SPEEDUP]
+//!     cargo run -p gonio --example link_throughput [N] [SPEEDUP] [PLAN.bin]
 //!
+//! With a third argument the plan is also written there (a plan file for `gonio measure`).
 //! Prints directions/s in wall time and in instrument time and the link's counters.
 
 use gonio::journal::Journal;
@@ -38,6 +39,9 @@ fn main() -> anyhow::Result<()> {
             }
         })
         .collect();
+    if let Some(path) = args.next() {
+        gonio::plan::file::write_plan_file(std::path::Path::new(&path), &plan)?;
+    }
     let model = SimModel::ideal("ggx:alpha=0.2,diffuse=0.1", cfg)?;
     let sim = SimHandle::spawn(Arc::new(model), speedup, None)?;
     let port = sim.path().display().to_string();
@@ -45,7 +49,15 @@ fn main() -> anyhow::Result<()> {
     let mut journal = Journal::create(dir.path(), 0, u32::try_from(n)?)?;
     let t = Box::new(SerialTransport::open(&port)?);
     let wall = Instant::now();
-    let summary = link::run_plan(t, &mut ReopenPath(port), &cfg, &plan, &mut journal, &mut Quiet, &RunOptions::default())?;
+    let summary = link::run_plan(
+        t,
+        &mut ReopenPath(port),
+        &cfg,
+        &plan,
+        &mut journal,
+        &mut Quiet,
+        &RunOptions::default(),
+    )?;
     let wall_s = wall.elapsed().as_secs_f64();
     let report = sim.stop();
     println!(

@@ -56,11 +56,15 @@ pub struct Journal {
 }
 
 pub fn fnv64(bytes: &[u8]) -> u64 {
-    bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3))
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
+    })
 }
 
 fn fnv32(bytes: &[u8]) -> u32 {
-    bytes.iter().fold(0x811c_9dc5u32, |h, &b| (h ^ u32::from(b)).wrapping_mul(0x0100_0193))
+    bytes
+        .iter()
+        .fold(0x811c_9dc5u32, |h, &b| (h ^ u32::from(b)).wrapping_mul(0x0100_0193))
 }
 
 fn header(plan_hash: u64, total: u32) -> String {
@@ -79,7 +83,11 @@ impl Journal {
             path: path.display().to_string(),
             source,
         };
-        let mut file = OpenOptions::new().create_new(true).append(true).open(&path).map_err(io)?;
+        let mut file = OpenOptions::new()
+            .create_new(true)
+            .append(true)
+            .open(&path)
+            .map_err(io)?;
         file.write_all(header(plan_hash, total).as_bytes()).map_err(io)?;
         file.sync_all().map_err(io)?;
         Ok(Self {
@@ -95,7 +103,10 @@ impl Journal {
     pub fn resume(dir: &Path, plan_hash: u64, total: u32) -> Result<Self, JournalError> {
         let path = Self::path_in(dir);
         let p = path.display().to_string();
-        let io = |source| JournalError::Io { path: p.clone(), source };
+        let io = |source| JournalError::Io {
+            path: p.clone(),
+            source,
+        };
         let bytes = std::fs::read(&path).map_err(io)?;
         let want = header(plan_hash, total);
         if !bytes.starts_with(b"gonio-journal ") {
@@ -169,10 +180,12 @@ impl Journal {
             counts: m.counts.to_vec(),
         };
         let line = format_record(&r);
-        self.file.write_all(line.as_bytes()).map_err(|source| JournalError::Io {
-            path: self.path.display().to_string(),
-            source,
-        })?;
+        self.file
+            .write_all(line.as_bytes())
+            .map_err(|source| JournalError::Io {
+                path: self.path.display().to_string(),
+                source,
+            })?;
         self.records.entry(index).or_insert(r);
         Ok(())
     }
@@ -216,11 +229,19 @@ fn parse_record(line: &[u8]) -> Option<Record> {
     let counts = if num(9).is_empty() {
         Vec::new()
     } else {
-        num(9).split(',').map(|c| c.parse().ok()).collect::<Option<Vec<u32>>>()?
+        num(9)
+            .split(',')
+            .map(|c| c.parse().ok())
+            .collect::<Option<Vec<u32>>>()?
     };
     Some(Record {
         index: num(1).parse().ok()?,
-        steps: [num(2).parse().ok()?, num(3).parse().ok()?, num(4).parse().ok()?, num(5).parse().ok()?],
+        steps: [
+            num(2).parse().ok()?,
+            num(3).parse().ok()?,
+            num(4).parse().ok()?,
+            num(5).parse().ok()?,
+        ],
         exposure_us: num(6).parse().ok()?,
         timestamp_us: num(7).parse().ok()?,
         session: num(8).parse().ok()?,
@@ -261,8 +282,14 @@ mod tests {
         assert_eq!(j.records()[&3].counts, vec![10, 20, 30]);
         assert_eq!(j.session, 1);
         assert!(!std::fs::read_to_string(&path).unwrap().contains("m 4 1 2 3"));
-        assert!(matches!(Journal::resume(dir.path(), 8, 5), Err(JournalError::OtherPlan { .. })));
-        assert!(Journal::create(dir.path(), 7, 5).is_err(), "must not overwrite a journal");
+        assert!(matches!(
+            Journal::resume(dir.path(), 8, 5),
+            Err(JournalError::OtherPlan { .. })
+        ));
+        assert!(
+            Journal::create(dir.path(), 7, 5).is_err(),
+            "must not overwrite a journal"
+        );
     }
 
     #[test]
@@ -275,6 +302,9 @@ mod tests {
         let path = Journal::path_in(dir.path());
         let text = std::fs::read_to_string(&path).unwrap().replacen("m 0 1", "m 0 2", 1);
         std::fs::write(&path, text).unwrap();
-        assert!(matches!(Journal::resume(dir.path(), 1, 5), Err(JournalError::Damaged { line: 2, .. })));
+        assert!(matches!(
+            Journal::resume(dir.path(), 1, 5),
+            Err(JournalError::Damaged { line: 2, .. })
+        ));
     }
 }

@@ -63,10 +63,7 @@ pub fn run_sim(a: SimArgs) -> Result<()> {
     let model = SimModel::load(&a.scene, cfg, a.seed)?;
     let handle = SimHandle::spawn(Arc::new(model), a.speedup, a.link.clone())?;
     println!("{}", handle.path().display());
-    eprintln!(
-        "virtual gonio running ({}x speedup); Ctrl-C to stop",
-        a.speedup
-    );
+    eprintln!("virtual gonio running ({}x speedup); Ctrl-C to stop", a.speedup);
     loop {
         std::thread::sleep(Duration::from_secs(3600));
     }
@@ -87,7 +84,8 @@ impl Progress for Bar {
         } else {
             "?".into()
         };
-        self.bar.set_message(format!("instrument {instrument_s:.1} s, ETA {eta}"));
+        self.bar
+            .set_message(format!("instrument {instrument_s:.1} s, ETA {eta}"));
     }
     fn note(&mut self, line: &str) {
         self.bar.suspend(|| eprintln!("{line}"));
@@ -153,7 +151,12 @@ pub fn run_measure(a: MeasureArgs) -> Result<()> {
     let mut reopen = ReopenPath(port.clone());
     let result = link::run_plan(first, &mut reopen, &cfg, &plan, &mut journal, &mut progress, &opts);
     progress.bar.finish_and_clear();
-    let summary = result.map_err(|e| anyhow!("{port}: {e} ({} of {total} directions are in the journal)", journal.records().len()))?;
+    let summary = result.map_err(|e| {
+        anyhow!(
+            "{port}: {e} ({} of {total} directions are in the journal)",
+            journal.records().len()
+        )
+    })?;
     let csv = a.out.join("measurements.csv");
     link::write_csv(&csv, &cfg, &plan, &journal).with_context(|| format!("cannot write {}", csv.display()))?;
     let wall_s = wall.elapsed().as_secs_f64();

@@ -15,8 +15,17 @@ const N: usize = 60;
 fn reference(fx: &Fixture) -> Vec<String> {
     let out = fx.path("reference");
     let o = run(&[
-        "measure", "--sim", s(&fx.scene), "--plan", s(&fx.plan), "--instrument", s(&fx.instrument), "-o", s(&out),
-        "--speedup", "10000",
+        "measure",
+        "--sim",
+        s(&fx.scene),
+        "--plan",
+        s(&fx.plan),
+        "--instrument",
+        s(&fx.instrument),
+        "-o",
+        s(&out),
+        "--speedup",
+        "10000",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let rows = csv_without_time(&out.join("measurements.csv"));
@@ -44,7 +53,17 @@ fn sim_on_link(fx: &Fixture, speedup: f64) -> SimHandle {
 fn measure_child(fx: &Fixture, out: &Path, extra: &[&str]) -> Child {
     let port = fx.path("port");
     gonio()
-        .args(["measure", "--port", s(&port), "--plan", s(&fx.plan), "--instrument", s(&fx.instrument), "-o", s(out)])
+        .args([
+            "measure",
+            "--port",
+            s(&port),
+            "--plan",
+            s(&fx.plan),
+            "--instrument",
+            s(&fx.instrument),
+            "-o",
+            s(out),
+        ])
         .args(extra)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -68,7 +87,15 @@ fn host_killed_mid_scan_resumes_to_the_same_result() {
     assert!(!out.join("measurements.csv").exists());
     let port = fx.path("port");
     let o = run(&[
-        "measure", "--port", s(&port), "--plan", s(&fx.plan), "--instrument", s(&fx.instrument), "-o", s(&out),
+        "measure",
+        "--port",
+        s(&port),
+        "--plan",
+        s(&fx.plan),
+        "--instrument",
+        s(&fx.instrument),
+        "-o",
+        s(&out),
         "--resume",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -102,11 +129,23 @@ fn device_killed_mid_scan_is_reported_and_the_scan_resumes_when_it_returns() {
 
 #[test]
 fn a_limit_fault_mid_scan_is_reported_with_the_pose_and_the_journal_keeps_what_came_before() {
-    let fx = Fixture::new(N, "[effects]\nlimit_fault = { axis = \"detector\", after_readings = 7 }\n");
+    let fx = Fixture::new(
+        N,
+        "[effects]\nlimit_fault = { axis = \"detector\", after_readings = 7 }\n",
+    );
     let out = fx.path("fault");
     let o = run(&[
-        "measure", "--sim", s(&fx.scene), "--plan", s(&fx.plan), "--instrument", s(&fx.instrument), "-o", s(&out),
-        "--speedup", "10000",
+        "measure",
+        "--sim",
+        s(&fx.scene),
+        "--plan",
+        s(&fx.plan),
+        "--instrument",
+        s(&fx.instrument),
+        "-o",
+        s(&out),
+        "--speedup",
+        "10000",
     ]);
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success());
@@ -136,7 +175,17 @@ fn bad_inputs_fail_with_one_line_and_write_nothing() {
     let o = s(&out);
     // Missing port.
     assert_clean_failure(
-        &["measure", "--port", "/dev/does-not-exist", "--plan", plan, "--instrument", inst, "-o", o],
+        &[
+            "measure",
+            "--port",
+            "/dev/does-not-exist",
+            "--plan",
+            plan,
+            "--instrument",
+            inst,
+            "-o",
+            o,
+        ],
         &out,
         "cannot open port /dev/does-not-exist",
     );
@@ -144,7 +193,19 @@ fn bad_inputs_fail_with_one_line_and_write_nothing() {
     let pty = nix::pty::openpty(None, None).unwrap();
     let silent = nix::unistd::ttyname(pty.slave).unwrap();
     assert_clean_failure(
-        &["measure", "--port", s(&silent), "--plan", plan, "--instrument", inst, "-o", o, "--hello-timeout", "0.5"],
+        &[
+            "measure",
+            "--port",
+            s(&silent),
+            "--plan",
+            plan,
+            "--instrument",
+            inst,
+            "-o",
+            o,
+            "--hello-timeout",
+            "0.5",
+        ],
         &out,
         "no gonio answered",
     );
@@ -154,15 +215,39 @@ fn bad_inputs_fail_with_one_line_and_write_nothing() {
     bytes[5] ^= 0x40;
     std::fs::write(&bad_plan, bytes).unwrap();
     assert_clean_failure(
-        &["measure", "--sim", scene, "--plan", s(&bad_plan), "--instrument", inst, "-o", o],
+        &[
+            "measure",
+            "--sim",
+            scene,
+            "--plan",
+            s(&bad_plan),
+            "--instrument",
+            inst,
+            "-o",
+            o,
+        ],
         &out,
         "damaged",
     );
     // An instrument file with impossible values.
     let bad_inst = fx.path("bad.toml");
-    std::fs::write(&bad_inst, coarse_instrument_toml().replace("max_deg = 85.0", "max_deg = 95.0")).unwrap();
+    std::fs::write(
+        &bad_inst,
+        coarse_instrument_toml().replace("max_deg = 85.0", "max_deg = 95.0"),
+    )
+    .unwrap();
     assert_clean_failure(
-        &["measure", "--sim", scene, "--plan", plan, "--instrument", s(&bad_inst), "-o", o],
+        &[
+            "measure",
+            "--sim",
+            scene,
+            "--plan",
+            plan,
+            "--instrument",
+            s(&bad_inst),
+            "-o",
+            o,
+        ],
         &out,
         "tilt limits",
     );
@@ -170,7 +255,17 @@ fn bad_inputs_fail_with_one_line_and_write_nothing() {
     let bad_scene = fx.path("bad-scene.toml");
     std::fs::write(&bad_scene, SCENE.replace("ggx:alpha=0.2", "ggx:alpha=banana")).unwrap();
     assert_clean_failure(
-        &["measure", "--sim", s(&bad_scene), "--plan", plan, "--instrument", inst, "-o", o],
+        &[
+            "measure",
+            "--sim",
+            s(&bad_scene),
+            "--plan",
+            plan,
+            "--instrument",
+            inst,
+            "-o",
+            o,
+        ],
         &out,
         "bad-scene.toml",
     );
@@ -202,7 +297,9 @@ fn a_device_of_another_protocol_version_is_refused_with_a_clear_message() {
                 if nix::poll::poll(&mut pfd, 20).unwrap_or(0) <= 0 {
                     continue;
                 }
-                let Ok(n) = nix::unistd::read(master, &mut buf) else { continue };
+                let Ok(n) = nix::unistd::read(master, &mut buf) else {
+                    continue;
+                };
                 for &b in &buf[..n] {
                     if let Some(Ok(f)) = dec.push::<HostMsg>(b) {
                         if let HostMsg::Hello(_) = f.msg {
@@ -220,7 +317,17 @@ fn a_device_of_another_protocol_version_is_refused_with_a_clear_message() {
         })
     };
     assert_clean_failure(
-        &["measure", "--port", s(&path), "--plan", s(&fx.plan), "--instrument", s(&fx.instrument), "-o", s(&out)],
+        &[
+            "measure",
+            "--port",
+            s(&path),
+            "--plan",
+            s(&fx.plan),
+            "--instrument",
+            s(&fx.instrument),
+            "-o",
+            s(&out),
+        ],
         &out,
         "protocol mismatch",
     );

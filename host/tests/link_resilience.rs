@@ -15,7 +15,14 @@ const N: usize = 160;
 const SPEEDUP: f64 = 1e4;
 
 /// Run the plan over a fault-injected link; returns the journal's records and the link counters.
-fn scan_with(fx: &Fixture, faults: FaultConfig, out: &str) -> (Vec<(u32, Vec<u32>, [i32; 4])>, link::RunSummary, (link::FaultCounts, link::FaultCounts)) {
+/// (plan index, counts, steps) of every journaled reading.
+type Readings = Vec<(u32, Vec<u32>, [i32; 4])>;
+
+fn scan_with(
+    fx: &Fixture,
+    faults: FaultConfig,
+    out: &str,
+) -> (Readings, link::RunSummary, (link::FaultCounts, link::FaultCounts)) {
     let cfg = fx.instrument_config();
     let model = SimModel::load(&fx.scene, cfg, 1).unwrap();
     let sim = SimHandle::spawn(Arc::new(model), SPEEDUP, None).unwrap();
@@ -37,8 +44,10 @@ fn scan_with(fx: &Fixture, faults: FaultConfig, out: &str) -> (Vec<(u32, Vec<u32
             self.0.lock().unwrap().read(b, t)
         }
     }
-    let mut opts = RunOptions::default();
-    opts.reconnect_wait = Duration::from_secs(0);
+    let opts = RunOptions {
+        reconnect_wait: Duration::from_secs(0),
+        ..RunOptions::default()
+    };
     let summary = link::run_plan(
         Box::new(Shared(shared.clone())),
         &mut ReopenPath(port),
@@ -56,7 +65,11 @@ fn scan_with(fx: &Fixture, faults: FaultConfig, out: &str) -> (Vec<(u32, Vec<u32
     assert_eq!(indices.len(), N, "journal lines under {faults:?}");
     indices.sort_unstable();
     assert_eq!(indices, (0..N as u32).collect::<Vec<_>>());
-    let records = journal.records().values().map(|r| (r.index, r.counts.clone(), r.steps)).collect();
+    let records = journal
+        .records()
+        .values()
+        .map(|r| (r.index, r.counts.clone(), r.steps))
+        .collect();
     (records, summary, counts)
 }
 
@@ -76,7 +89,10 @@ fn five_percent_faults_each_and_all_together_lose_and_duplicate_nothing() {
     let fx = Fixture::new(N, "");
     let (clean, clean_summary, _) = scan_with(&fx, FaultConfig::NONE, "clean");
     assert_eq!(clean_summary.stats.retransmits, 0, "{:?}", clean_summary.stats);
-    assert!(clean.iter().all(|(_, c, _)| c.iter().any(|&v| v > 0)), "readings are all dark");
+    assert!(
+        clean.iter().all(|(_, c, _)| c.iter().any(|&v| v > 0)),
+        "readings are all dark"
+    );
     let cases = [
         ("drop", faults(0.05, 0.0, 0.0, 0.0, 11)),
         ("corrupt", faults(0.0, 0.05, 0.0, 0.0, 12)),
@@ -92,7 +108,10 @@ fn five_percent_faults_each_and_all_together_lose_and_duplicate_nothing() {
         );
         // The injector did inject, in both directions.
         let hit = |c: &link::FaultCounts| c.dropped + c.corrupted + c.duplicated + c.delayed;
-        assert!(hit(&tx) > 0 && hit(&rx) > 0, "{name}: nothing injected ({tx:?}, {rx:?})");
+        assert!(
+            hit(&tx) > 0 && hit(&rx) > 0,
+            "{name}: nothing injected ({tx:?}, {rx:?})"
+        );
         assert_eq!(got, clean, "{name}: readings differ from the clean run");
     }
 }

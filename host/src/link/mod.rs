@@ -110,17 +110,22 @@ struct JournalSink<'a> {
 
 impl MeasurementSink for JournalSink<'_> {
     fn record(&mut self, m: &Measurement) -> Result<(), String> {
-        let index = *self
-            .map
-            .get(m.index as usize)
-            .ok_or_else(|| format!("device measured direction {} of a {}-direction stream", m.index, self.map.len()))?;
+        let index = *self.map.get(m.index as usize).ok_or_else(|| {
+            format!(
+                "device measured direction {} of a {}-direction stream",
+                m.index,
+                self.map.len()
+            )
+        })?;
         self.journal.append(index, m).map_err(|e| e.to_string())?;
         self.measured += 1;
-        self.first_us.get_or_insert(m.timestamp_us.saturating_sub(u64::from(m.exposure_us)));
+        self.first_us
+            .get_or_insert(m.timestamp_us.saturating_sub(u64::from(m.exposure_us)));
         self.last_us = m.timestamp_us;
         let session_s = (self.last_us - self.first_us.unwrap_or(self.last_us)) as f64 * 1e-6;
         let done = self.journal.records().len() as u32;
-        self.progress.update(done, self.journal.total(), self.base_s + session_s);
+        self.progress
+            .update(done, self.journal.total(), self.base_s + session_s);
         Ok(())
     }
     fn sync(&mut self) -> Result<(), String> {
@@ -152,7 +157,10 @@ pub fn run_plan(
             Some(t) => t,
             None => wait_for_device(reconnect, opts, progress)?,
         };
-        let sub: Vec<Direction> = remaining.iter().filter_map(|&i| plan.get(i as usize).copied()).collect();
+        let sub: Vec<Direction> = remaining
+            .iter()
+            .filter_map(|&i| plan.get(i as usize).copied())
+            .collect();
         summary.sessions += 1;
         let result = (|| -> Result<(u32, f64, LinkStats), (LinkError, LinkStats)> {
             let mut link = Link::connect(t, opts.timing).map_err(|e| (e, LinkStats::default()))?;
@@ -203,7 +211,11 @@ pub fn run_plan(
     }
 }
 
-fn wait_for_device(reconnect: &mut dyn Reconnect, opts: &RunOptions, progress: &mut dyn Progress) -> Result<Box<dyn Transport>, RunError> {
+fn wait_for_device(
+    reconnect: &mut dyn Reconnect,
+    opts: &RunOptions,
+    progress: &mut dyn Progress,
+) -> Result<Box<dyn Transport>, RunError> {
     let start = Instant::now();
     let mut last = String::from("not tried");
     // A moment for the old port to disappear, so we do not reopen the dying one.
@@ -234,7 +246,12 @@ fn angles_deg(v: gonio_shared::vec3::Vec3<f64>) -> (f64, f64) {
 /// same four, from forward kinematics of the reported step positions, degrees), the four step
 /// positions, `exposure_us`, `timestamp_us` (device clock of that session), `session`, and one
 /// `count_K` column per detector channel.
-pub fn write_csv(path: &Path, cfg: &InstrumentConfig<f64>, plan: &[Direction], journal: &Journal) -> std::io::Result<()> {
+pub fn write_csv(
+    path: &Path,
+    cfg: &InstrumentConfig<f64>,
+    plan: &[Direction],
+    journal: &Journal,
+) -> std::io::Result<()> {
     use std::fmt::Write as _;
     let kin = Kinematics::new(*cfg).map_err(|e| std::io::Error::other(e.to_string()))?;
     let channels = journal.records().values().map(|r| r.counts.len()).max().unwrap_or(0);

@@ -34,7 +34,11 @@ pub enum LinkError {
     #[error("the device refused {what}: {reason:?}")]
     Refused { what: &'static str, reason: RefuseReason },
     #[error("device fault {fault:?} at pose {pose}")]
-    Fault { fault: Fault, pose: String, steps: Option<[i32; 4]> },
+    Fault {
+        fault: Fault,
+        pose: String,
+        steps: Option<[i32; 4]>,
+    },
     #[error("{0}")]
     Sink(String),
 }
@@ -164,7 +168,8 @@ impl<T: Transport> Link<T> {
             self.pump(Duration::from_millis(10))?;
         }
         let mut buf = [0u8; MAX_WIRE_FRAME];
-        let n = encode(self.tx_seq, msg, &mut buf).map_err(|e| LinkError::Sink(format!("cannot encode {msg:?}: {e}")))?;
+        let n =
+            encode(self.tx_seq, msg, &mut buf).map_err(|e| LinkError::Sink(format!("cannot encode {msg:?}: {e}")))?;
         let frame = buf.get(..n).unwrap_or(&[]).to_vec();
         self.t.write_all(&frame).map_err(Self::io)?;
         self.stats.frames_sent += 1;
@@ -236,7 +241,11 @@ impl<T: Transport> Link<T> {
             DeviceMsg::Ack { seq } => {
                 let before = self.inflight.len();
                 // The device executes in order: an Ack covers every frame up to it.
-                while self.inflight.front().is_some_and(|(s, _)| seq.wrapping_sub(*s) < 0x8000) {
+                while self
+                    .inflight
+                    .front()
+                    .is_some_and(|(s, _)| seq.wrapping_sub(*s) < 0x8000)
+                {
                     self.inflight.pop_front();
                 }
                 if self.inflight.len() != before {
@@ -267,7 +276,11 @@ impl<T: Transport> Link<T> {
         }
         let deadline = Instant::now() + timeout;
         loop {
-            self.pump(deadline.saturating_duration_since(Instant::now()).min(Duration::from_millis(20)))?;
+            self.pump(
+                deadline
+                    .saturating_duration_since(Instant::now())
+                    .min(Duration::from_millis(20)),
+            )?;
             if let Some(m) = self.rx.pop_front() {
                 return Ok(Some(m));
             }
@@ -363,7 +376,9 @@ impl<T: Transport> Link<T> {
             let s = self.status()?;
             match s.state {
                 ControllerState::Ready if s.homed => return Ok(s),
-                ControllerState::Fault => return Err(self.fault_error(s.last_fault.unwrap_or(Fault::NotHomed), Some(s.steps))),
+                ControllerState::Fault => {
+                    return Err(self.fault_error(s.last_fault.unwrap_or(Fault::NotHomed), Some(s.steps)))
+                }
                 ControllerState::Idle => self.send(&HostMsg::Home)?,
                 _ => {}
             }
@@ -408,6 +423,9 @@ impl<T: Transport> Link<T> {
         let mut resend_at: Option<(u32, Instant)> = None;
         let mut last_activity = Instant::now();
         let mut dirty = false; // recorded but not synced
+                               // A status asked for after a silence: only its answer can reveal lost measurements (an
+                               // unsolicited status may overtake readings that are merely still on their way).
+        let mut probing = false;
         loop {
             while next_send < total && self.window_free() {
                 let len = (total - next_send).min(CHUNK_DIRECTIONS as u32);
@@ -416,7 +434,8 @@ impl<T: Transport> Link<T> {
                 }
                 let lo = next_send as usize;
                 let dirs = plan.get(lo..lo + len as usize).unwrap_or(&[]);
-                let directions = heapless::Vec::from_slice(dirs).map_err(|_| LinkError::Sink("chunk too long".into()))?;
+                let directions =
+                    heapless::Vec::from_slice(dirs).map_err(|_| LinkError::Sink("chunk too long".into()))?;
                 self.send(&HostMsg::Plan(PlanChunk {
                     first_index: next_send,
                     directions,
@@ -440,7 +459,10 @@ impl<T: Transport> Link<T> {
                 Some(DeviceMsg::Measurement(m)) => {
                     if m.seq == next_seq {
                         if m.index >= total {
-                            return Err(LinkError::Sink(format!("device measured index {} of a {total}-direction plan", m.index)));
+                            return Err(LinkError::Sink(format!(
+                                "device measured index {} of a {total}-direction plan",
+                                m.index
+                            )));
                         }
                         sink.record(&m).map_err(LinkError::Sink)?;
                         dirty = true;
@@ -469,15 +491,22 @@ impl<T: Transport> Link<T> {
                         // Our Start was refused or lost (e.g. sent before the plan reached it).
                         self.send(&HostMsg::Start)?;
                     }
-                    if s.plan_done > next_seq && resend_at.is_none_or(|(_, t)| t.elapsed() >= self.timing.rto * 2) {
+                    if std::mem::take(&mut probing)
+                        && s.plan_done > next_seq
+                        && resend_at.is_none_or(|(_, t)| t.elapsed() >= self.timing.rto * 2)
+                    {
                         self.send(&HostMsg::ResendMeasurements { from: next_seq })?;
                         self.stats.resend_requests += 1;
                         resend_at = Some((next_seq, Instant::now()));
                     }
                 }
                 Some(DeviceMsg::Refused { reason, .. }) => {
-                    if let RefuseReason::BadConfig(_) | RefuseReason::NotConfigured | RefuseReason::NoHandshake = reason {
-                        return Err(LinkError::Refused { what: "a scan command", reason });
+                    if let RefuseReason::BadConfig(_) | RefuseReason::NotConfigured | RefuseReason::NoHandshake = reason
+                    {
+                        return Err(LinkError::Refused {
+                            what: "a scan command",
+                            reason,
+                        });
                     }
                 }
                 Some(DeviceMsg::Hello(_) | DeviceMsg::Ack { .. } | DeviceMsg::Nak { .. }) | None => {}
@@ -510,6 +539,7 @@ impl<T: Transport> Link<T> {
                 }
                 self.send(&HostMsg::GetStatus)?;
                 self.stats.status_requests += 1;
+                probing = true;
                 last_activity = Instant::now();
             }
         }

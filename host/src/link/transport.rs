@@ -57,7 +57,14 @@ impl Transport for SerialTransport {
             // After poll() said readable, 0 bytes means the other end hung up.
             Ok(0) => Err(io::Error::new(io::ErrorKind::ConnectionAborted, "the port hung up")),
             Ok(n) => Ok(n),
-            Err(e) if matches!(e.kind(), io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock | io::ErrorKind::Interrupted) => Ok(0),
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock | io::ErrorKind::Interrupted
+                ) =>
+            {
+                Ok(0)
+            }
             Err(e) => Err(e),
         }
     }

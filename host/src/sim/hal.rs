@@ -17,7 +17,10 @@ enum Switch {
     AtOrAbove(i64),
     AtOrBelow(i64),
     /// Index sensor of a continuous axis: closed at 0 mod `rev` and `window` steps below it.
-    Index { rev: i64, window: i64 },
+    Index {
+        rev: i64,
+        window: i64,
+    },
 }
 
 impl Switch {
@@ -207,7 +210,11 @@ mod tests {
         steps(&mut hal, Axis::Light, 200);
         assert_eq!(hal.output_steps()[0], 180.0, "output trails the motor by half the band");
         steps(&mut hal, Axis::Light, -30);
-        assert_eq!(hal.output_steps()[0], 180.0, "inside the dead band the output stands still");
+        assert_eq!(
+            hal.output_steps()[0],
+            180.0,
+            "inside the dead band the output stands still"
+        );
         steps(&mut hal, Axis::Light, -30);
         assert_eq!(hal.output_steps()[0], 160.0);
         // Without the effect the output is the motor.
@@ -219,7 +226,9 @@ mod tests {
 
     #[test]
     fn the_limit_fault_hook_closes_the_switch_once_after_its_readings() {
-        let mut hal = SimHal::new(model("[effects]\nlimit_fault = { axis = \"tilt\", after_readings = 1 }\n"));
+        let mut hal = SimHal::new(model(
+            "[effects]\nlimit_fault = { axis = \"tilt\", after_readings = 1 }\n",
+        ));
         steps(&mut hal, Axis::Tilt, 1);
         assert!(!hal.limit_closed(Axis::Tilt));
         hal.start_exposure(10);

@@ -24,7 +24,7 @@ use nix::poll::{poll, PollFd, PollFlags};
 use nix::sys::termios::{cfmakeraw, tcgetattr, tcsetattr, SetArg};
 use std::os::unix::io::RawFd;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU8, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -276,7 +276,9 @@ fn run(fds: Fds, model: Arc<SimModel>, speedup: f64, control: &AtomicU8, counter
             0
         } else {
             match dev.next_deadline_us() {
-                Some(d) => (((d.saturating_sub(hal.now_us) as f64 - budget_us) / speedup / 1000.0).ceil() as i32).clamp(0, 2),
+                Some(d) => {
+                    (((d.saturating_sub(hal.now_us) as f64 - budget_us) / speedup / 1000.0).ceil() as i32).clamp(0, 2)
+                }
                 None => 2,
             }
         };

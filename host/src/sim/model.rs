@@ -169,16 +169,23 @@ impl SimModel {
         Self::from_toml(&text, path, instrument, seed)
     }
 
-    pub fn from_toml(text: &str, path: &Path, instrument: InstrumentConfig<f64>, seed: u64) -> Result<Self, SceneError> {
+    pub fn from_toml(
+        text: &str,
+        path: &Path,
+        instrument: InstrumentConfig<f64>,
+        seed: u64,
+    ) -> Result<Self, SceneError> {
         let bad = |reason: String| SceneError {
             path: path.display().to_string(),
             reason,
         };
-        let mut table: toml::Table = toml::from_str(text)
-            .map_err(|e| bad(e.message().lines().next().unwrap_or("invalid TOML").to_string()))?;
+        let mut table: toml::Table =
+            toml::from_str(text).map_err(|e| bad(e.message().lines().next().unwrap_or("invalid TOML").to_string()))?;
         let detector = match table.remove("detector") {
             None => DetectorModel::default(),
-            Some(v) => v.try_into().map_err(|e: toml::de::Error| bad(format!("[detector]: {}", e.message())))?,
+            Some(v) => v
+                .try_into()
+                .map_err(|e: toml::de::Error| bad(format!("[detector]: {}", e.message())))?,
         };
         let mut ours = toml::Table::new();
         if let Some(toml::Value::Table(effects)) = table.get_mut("effects") {
@@ -205,13 +212,17 @@ impl SimModel {
         let limit_fault = match &effects.limit_fault {
             None => None,
             Some(l) => Some((
-                axis_by_name(&l.axis).ok_or_else(|| bad(format!("effects.limit_fault.axis: no axis named {:?}", l.axis)))?,
+                axis_by_name(&l.axis)
+                    .ok_or_else(|| bad(format!("effects.limit_fault.axis: no axis named {:?}", l.axis)))?,
                 l.after_readings,
             )),
         };
         if let Some(a) = &effects.aperture {
-            if !(a.half_angle_deg.is_finite() && (0.0..45.0).contains(&a.half_angle_deg)) || !(1..=1024).contains(&a.samples) {
-                return Err(bad("effects.aperture: needs 0 <= half_angle_deg < 45 and 1 <= samples <= 1024".into()));
+            let ok = (0.0..45.0).contains(&a.half_angle_deg) && (1..=1024).contains(&a.samples);
+            if !ok {
+                return Err(bad(
+                    "effects.aperture: needs 0 <= half_angle_deg < 45 and 1 <= samples <= 1024".into(),
+                ));
             }
         }
         if let Some(s) = &effects.stray_light {
@@ -222,7 +233,9 @@ impl SimModel {
         for (key, v) in [("misalignment", &effects.misalignment), ("backlash", &effects.backlash)] {
             if let Some(v) = v {
                 if !v.radians().iter().all(|x| x.is_finite() && x.abs() < 0.5) {
-                    return Err(bad(format!("effects.{key}: every angle must be finite and below 28 degrees")));
+                    return Err(bad(format!(
+                        "effects.{key}: every angle must be finite and below 28 degrees"
+                    )));
                 }
             }
         }
@@ -264,7 +277,11 @@ impl SimModel {
 
     /// The true pose of axis outputs at (fractional) step positions, misalignment included.
     pub fn pose_at(&self, out_steps: &[f64; AXIS_COUNT]) -> Pose<f64> {
-        let offset = self.effects.misalignment.as_ref().map_or([0.0; AXIS_COUNT], PerAxisDeg::radians);
+        let offset = self
+            .effects
+            .misalignment
+            .as_ref()
+            .map_or([0.0; AXIS_COUNT], PerAxisDeg::radians);
         Pose::from_array(AXES.map(|a| out_steps[a.index()] / self.kin.steps_per_radian(a) + offset[a.index()]))
     }
 
@@ -293,7 +310,9 @@ impl SimModel {
         let d = &self.detector;
         let scale = d.gain * d.irradiance_w_m2 * cos_i * d.solid_angle_sr * f64::from(exposure_us) * 1e-6;
         let rgb = [f.x, f.y, f.z];
-        let mut channels: Vec<f64> = (0..d.channels).map(|c| rgb.get(c).copied().unwrap_or(f.y) * scale).collect();
+        let mut channels: Vec<f64> = (0..d.channels)
+            .map(|c| rgb.get(c).copied().unwrap_or(f.y) * scale)
+            .collect();
         self.pipeline.apply_reading(
             &mut channels,
             Reading {
@@ -389,7 +408,12 @@ mod tests {
         let p = pose(30.0, 20.0);
         let got = m.counts(&p, 10_000, 0.0, 0);
         let d = DetectorModel::default();
-        let want = d.gain * d.irradiance_w_m2 * 30f64.to_radians().cos() * (0.5 / std::f64::consts::PI) * d.solid_angle_sr * 0.01;
+        let want = d.gain
+            * d.irradiance_w_m2
+            * 30f64.to_radians().cos()
+            * (0.5 / std::f64::consts::PI)
+            * d.solid_angle_sr
+            * 0.01;
         assert_eq!(got.len(), 3);
         for c in got {
             assert!((f64::from(c) - want).abs() <= 1.0, "{c} vs {want}");
@@ -423,10 +447,13 @@ mod tests {
     fn aperture_averages_a_sharp_peak_down_and_leaves_lambert_alone() {
         let p = pose(30.0, 30.0);
         let sharp = scene("ggx:alpha=0.05", "").brdf_seen(&p).0.x;
-        let wide = scene("ggx:alpha=0.05", "[effects]\naperture = { half_angle_deg = 5.0, samples = 32 }\n")
-            .brdf_seen(&p)
-            .0
-            .x;
+        let wide = scene(
+            "ggx:alpha=0.05",
+            "[effects]\naperture = { half_angle_deg = 5.0, samples = 32 }\n",
+        )
+        .brdf_seen(&p)
+        .0
+        .x;
         assert!(wide < 0.8 * sharp, "{wide} vs {sharp}");
         let l0 = scene("lambert:albedo=0.5", "").brdf_seen(&p).0.x;
         let l1 = scene("lambert:albedo=0.5", "[effects]\naperture = { half_angle_deg = 5.0 }\n")
@@ -445,14 +472,19 @@ mod tests {
     fn stray_light_adds_a_floor() {
         let p = pose(30.0, 20.0);
         let a = scene("lambert:albedo=0.5", "").brdf_seen(&p).0;
-        let b = scene("lambert:albedo=0.5", "[effects]\nstray_light = { brdf = 0.01 }\n").brdf_seen(&p).0;
+        let b = scene("lambert:albedo=0.5", "[effects]\nstray_light = { brdf = 0.01 }\n")
+            .brdf_seen(&p)
+            .0;
         assert!((b - a - DVec3::splat(0.01)).abs().max_element() < 1e-12);
     }
 
     #[test]
     fn renderer_effects_apply_per_reading_and_repeat_for_the_same_key() {
         let p = pose(30.0, 20.0);
-        let noisy = scene("lambert:albedo=0.5", "[effects]\nshot_noise = { photons_per_unit = 1.0 }\n");
+        let noisy = scene(
+            "lambert:albedo=0.5",
+            "[effects]\nshot_noise = { photons_per_unit = 1.0 }\n",
+        );
         let a = noisy.counts(&p, 10_000, 0.0, 7);
         assert_eq!(a, noisy.counts(&p, 10_000, 0.0, 7), "same pose key, same noise");
         let ideal = scene("lambert:albedo=0.5", "").counts(&p, 10_000, 0.0, 7);
