@@ -208,8 +208,10 @@ fn run(fds: Fds, model: Arc<SimModel>, speedup: f64, control: &AtomicU8, counter
             KILL => break,
             STOP => {
                 let since = *stopping_since.get_or_insert_with(Instant::now);
-                // Keep the master open until the host has what the device sent (or gave up reading).
-                if (outbuf.is_empty() && dev.link().pending_bytes() == 0) || since.elapsed() > Duration::from_secs(1) {
+                // Keep the master open until the host has read what the device sent (or a second
+                // passed: a host that stopped reading is not waited for).
+                let sent = outbuf.is_empty() && dev.link().pending_bytes() == 0 && unread(fds.slave) == 0;
+                if sent || since.elapsed() > Duration::from_secs(1) {
                     break;
                 }
             }
@@ -295,6 +297,19 @@ fn run(fds: Fds, model: Arc<SimModel>, speedup: f64, control: &AtomicU8, counter
     report.readings = hal.readings;
     report.steps = hal.steps_taken;
     report
+}
+
+/// Bytes waiting in the slave's input queue, i.e. sent by the device and not yet read by the host.
+fn unread(slave: RawFd) -> usize {
+    let mut n: libc::c_int = 0;
+    // SAFETY: FIONREAD writes one c_int through the pointer, which points at `n` for the whole
+    // call; `slave` is a descriptor this thread owns and keeps open.
+    let r = unsafe { libc::ioctl(slave, libc::FIONREAD, &mut n as *mut libc::c_int) };
+    if r == 0 {
+        usize::try_from(n).unwrap_or(0)
+    } else {
+        0
+    }
 }
 
 fn drain(dev: &mut Device, outbuf: &mut Vec<u8>, tmp: &mut [u8]) {
