@@ -336,3 +336,49 @@ fn a_device_of_another_protocol_version_is_refused_with_a_clear_message() {
     let _ = nix::unistd::close(pty.master);
     let _ = nix::unistd::close(pty.slave);
 }
+
+#[test]
+fn gonio_sim_serves_gonio_measure_over_its_published_port() {
+    use std::io::BufRead;
+    let fx = Fixture::new(16, "");
+    let link = fx.path("sim-port");
+    let mut sim = gonio()
+        .args([
+            "sim",
+            "--scene",
+            s(&fx.scene),
+            "--instrument",
+            s(&fx.instrument),
+            "--speedup",
+            "10000",
+            "--link",
+            s(&link),
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    std::io::BufReader::new(sim.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    assert_eq!(first.trim(), s(&link), "gonio sim prints the port path");
+    let out = fx.path("out");
+    let o = run(&[
+        "measure",
+        "--port",
+        first.trim(),
+        "--plan",
+        s(&fx.plan),
+        "--instrument",
+        s(&fx.instrument),
+        "-o",
+        s(&out),
+    ]);
+    sim.kill().unwrap();
+    sim.wait().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("measured 16 directions"), "{stdout}");
+    assert_eq!(csv_without_time(&out.join("measurements.csv")).len(), 16);
+}
