@@ -382,3 +382,34 @@ fn gonio_sim_serves_gonio_measure_over_its_published_port() {
     assert!(stdout.contains("measured 16 directions"), "{stdout}");
     assert_eq!(csv_without_time(&out.join("measurements.csv")).len(), 16);
 }
+
+#[test]
+fn an_unreachable_direction_is_reported_by_its_plan_index() {
+    let fx = Fixture::new(8, "");
+    let mut dirs = plan(12);
+    dirs[9].theta_o = 95f32.to_radians(); // below the horizon
+    let bad_plan = fx.path("unreachable.bin");
+    gonio::plan::file::write_plan_file(&bad_plan, &dirs).unwrap();
+    let out = fx.path("out");
+    let o = run(&[
+        "measure",
+        "--sim",
+        s(&fx.scene),
+        "--plan",
+        s(&bad_plan),
+        "--instrument",
+        s(&fx.instrument),
+        "-o",
+        s(&out),
+        "--speedup",
+        "10000",
+    ]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        stderr.contains("Unreachable { index: 9, reason: BelowHorizon"),
+        "{stderr}"
+    );
+    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+    assert!(!out.join("measurements.csv").exists());
+}

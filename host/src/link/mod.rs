@@ -197,7 +197,7 @@ pub fn run_plan(
             Err((e, stats)) => {
                 add_stats(&mut summary.stats, &stats);
                 if !e.is_connection_loss() {
-                    return Err(e.into());
+                    return Err(to_plan_indices(e, &remaining).into());
                 }
                 progress.note(&format!(
                     "{e}; {} of {} directions are in the journal; waiting up to {:.0} s for the device",
@@ -208,6 +208,27 @@ pub fn run_plan(
                 summary.reconnects += 1;
             }
         }
+    }
+}
+
+/// The device numbers the directions of this session's stream from 0; the user knows them by
+/// their plan-file index.
+fn to_plan_indices(e: LinkError, remaining: &[u32]) -> LinkError {
+    use gonio_shared::msg::Fault;
+    match e {
+        LinkError::Fault {
+            fault: Fault::Unreachable { index, reason },
+            pose,
+            steps,
+        } => LinkError::Fault {
+            fault: Fault::Unreachable {
+                index: remaining.get(index as usize).copied().unwrap_or(index),
+                reason,
+            },
+            pose,
+            steps,
+        },
+        other => other,
     }
 }
 
