@@ -56,6 +56,10 @@ pub struct MeasureArgs {
     /// With --sim: seed of the simulated detector's noise.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Test the link: inject faults into whole frames, e.g.
+    /// `drop=0.05,corrupt=0.05,duplicate=0.05,delay=0.05,seed=1,dir=both`.
+    #[arg(long, value_name = "SPEC")]
+    inject_faults: Option<link::FaultConfig>,
 }
 
 pub fn run_sim(a: SimArgs) -> Result<()> {
@@ -125,9 +129,14 @@ pub fn run_measure(a: MeasureArgs) -> Result<()> {
     opts.timing.hello_timeout = Duration::from_secs_f64(a.hello_timeout.clamp(0.1, 600.0));
     opts.reconnect_wait = Duration::from_secs_f64(a.reconnect_wait.clamp(0.0, 86_400.0));
     let transport = SerialTransport::open(&port).map_err(|e| anyhow!("cannot open port {port}: {e}"))?;
+    let fault_counts = link::SharedFaultCounts::default();
+    let transport: Box<dyn link::Transport> = match a.inject_faults {
+        Some(f) => Box::new(link::FaultyTransport::new(transport, f).with_shared_counts(fault_counts.clone())),
+        None => Box::new(transport),
+    };
     // The handshake happens before the output folder is touched: a port that is not a gonio
     // leaves nothing behind.
-    let first = gonio::link::Link::connect(Box::new(transport) as Box<dyn link::Transport>, opts.timing)
+    let first = gonio::link::Link::connect(transport, opts.timing)
         .map_err(|e| anyhow!("{port}: {e}"))?
         .into_inner();
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
@@ -148,8 +157,17 @@ pub fn run_measure(a: MeasureArgs) -> Result<()> {
         start: Instant::now(),
     };
     let wall = Instant::now();
-    let mut reopen = ReopenPath(port.clone());
-    let result = link::run_plan(first, &mut reopen, &cfg, &plan, &mut journal, &mut progress, &opts);
+    let mut reopen_plain = ReopenPath(port.clone());
+    let mut reopen_faulty = a.inject_faults.map(|faults| link::ReopenFaulty {
+        path: port.clone(),
+        faults,
+        counts: fault_counts.clone(),
+    });
+    let reopen: &mut dyn link::Reconnect = match &mut reopen_faulty {
+        Some(r) => r,
+        None => &mut reopen_plain,
+    };
+    let result = link::run_plan(first, reopen, &cfg, &plan, &mut journal, &mut progress, &opts);
     progress.bar.finish_and_clear();
     let summary = result.map_err(|e| {
         anyhow!(
@@ -173,6 +191,11 @@ pub fn run_measure(a: MeasureArgs) -> Result<()> {
         "link: {} frames sent, {} retransmitted ({} timeouts, {} NAKs), {} bad frames in, {} duplicate measurements, {} resend requests, {} reconnects",
         s.frames_sent, s.retransmits, s.timeouts, s.naks, s.bad_frames_in, s.duplicate_measurements, s.resend_requests, summary.reconnects
     );
+    if a.inject_faults.is_some() {
+        if let Ok(c) = fault_counts.lock() {
+            println!("injected faults: host->device {:?}; device->host {:?}", c.0, c.1);
+        }
+    }
     println!("wrote {}", csv.display());
     if let Some(sim) = sim {
         sim.stop();

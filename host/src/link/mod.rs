@@ -16,7 +16,7 @@ use gonio_shared::msg::{Direction, Measurement};
 pub use session::{Link, LinkError, LinkStats, LinkTiming, MeasurementSink};
 use std::path::Path;
 use std::time::{Duration, Instant};
-pub use transport::{FaultConfig, FaultCounts, FaultyTransport, SerialTransport, Transport};
+pub use transport::{FaultConfig, FaultCounts, FaultyTransport, SerialTransport, SharedFaultCounts, Transport};
 
 /// Opens the port again after the device went away.
 pub trait Reconnect {
@@ -30,6 +30,22 @@ pub struct ReopenPath(pub String);
 impl Reconnect for ReopenPath {
     fn open(&mut self) -> std::io::Result<Box<dyn Transport>> {
         Ok(Box::new(SerialTransport::open(&self.0)?))
+    }
+}
+
+/// Reopen a port path through a fault injector (each connection with the next seed).
+pub struct ReopenFaulty {
+    pub path: String,
+    pub faults: FaultConfig,
+    pub counts: SharedFaultCounts,
+}
+
+impl Reconnect for ReopenFaulty {
+    fn open(&mut self) -> std::io::Result<Box<dyn Transport>> {
+        self.faults.seed = self.faults.seed.wrapping_add(1);
+        let t = FaultyTransport::new(SerialTransport::open(&self.path)?, self.faults)
+            .with_shared_counts(self.counts.clone());
+        Ok(Box::new(t))
     }
 }
 

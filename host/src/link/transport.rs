@@ -5,6 +5,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::collections::VecDeque;
 use std::io;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// A byte pipe with a read timeout. `read` returns `Ok(0)` when the timeout passed with nothing to
@@ -96,6 +97,54 @@ impl FaultConfig {
         seed: 1,
     };
 }
+
+impl std::str::FromStr for FaultConfig {
+    type Err = String;
+
+    /// `drop=0.05,corrupt=0.05,duplicate=0.05,delay=0.05,delay_ms=20,seed=1,dir=both` (any subset;
+    /// `dir` is `both`, `to-device` or `to-host`).
+    fn from_str(spec: &str) -> Result<Self, String> {
+        let mut c = FaultConfig::NONE;
+        for item in spec.split(',').filter(|i| !i.is_empty()) {
+            let (key, value) = item
+                .split_once('=')
+                .ok_or_else(|| format!("fault spec {item:?}: expected KEY=VALUE"))?;
+            let p = |v: &str| -> Result<f64, String> {
+                v.parse::<f64>()
+                    .ok()
+                    .filter(|x| (0.0..=1.0).contains(x))
+                    .ok_or_else(|| format!("fault spec {key}: {v:?} is not a probability in [0, 1]"))
+            };
+            match key {
+                "drop" => c.drop = p(value)?,
+                "corrupt" => c.corrupt = p(value)?,
+                "duplicate" => c.duplicate = p(value)?,
+                "delay" => c.delay = p(value)?,
+                "delay_ms" => {
+                    let ms: u64 = value.parse().map_err(|_| format!("fault spec delay_ms: {value:?}"))?;
+                    c.delay_by = Duration::from_millis(ms);
+                }
+                "seed" => c.seed = value.parse().map_err(|_| format!("fault spec seed: {value:?}"))?,
+                "dir" => {
+                    (c.host_to_device, c.device_to_host) = match value {
+                        "both" => (true, true),
+                        "to-device" => (true, false),
+                        "to-host" => (false, true),
+                        _ => return Err(format!("fault spec dir: {value:?} is not both, to-device or to-host")),
+                    }
+                }
+                _ => return Err(format!("fault spec: unknown key {key:?}")),
+            }
+        }
+        if c.drop + c.corrupt + c.duplicate + c.delay > 1.0 {
+            return Err("fault spec: the probabilities add up to more than 1".into());
+        }
+        Ok(c)
+    }
+}
+
+/// (host -> device, device -> host) counts, shared between the injectors of one run's connections.
+pub type SharedFaultCounts = Arc<Mutex<(FaultCounts, FaultCounts)>>;
 
 /// What the injector did, per direction.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -198,6 +247,9 @@ pub struct FaultyTransport<T> {
     tx: FaultLane,
     rx: FaultLane,
     ready: VecDeque<u8>,
+    /// Totals over every injector given the same handle (reconnections).
+    shared: SharedFaultCounts,
+    reported: (FaultCounts, FaultCounts),
 }
 
 impl<T: Transport> FaultyTransport<T> {
@@ -208,6 +260,25 @@ impl<T: Transport> FaultyTransport<T> {
             rx: FaultLane::new(cfg.device_to_host, cfg.seed ^ 0x9e37_79b9_7f4a_7c15),
             cfg,
             ready: VecDeque::new(),
+            shared: SharedFaultCounts::default(),
+            reported: Default::default(),
+        }
+    }
+
+    /// Add this injector's counts into `shared` (which other injectors may also add to).
+    pub fn with_shared_counts(mut self, shared: SharedFaultCounts) -> Self {
+        self.shared = shared;
+        self
+    }
+
+    fn publish(&mut self) {
+        let now = (self.tx.counts, self.rx.counts);
+        if now != self.reported {
+            if let Ok(mut s) = self.shared.lock() {
+                add_counts(&mut s.0, &now.0, &self.reported.0);
+                add_counts(&mut s.1, &now.1, &self.reported.1);
+            }
+            self.reported = now;
         }
     }
 
@@ -227,11 +298,20 @@ impl<T: Transport> FaultyTransport<T> {
     }
 }
 
+fn add_counts(total: &mut FaultCounts, now: &FaultCounts, before: &FaultCounts) {
+    total.frames += now.frames - before.frames;
+    total.dropped += now.dropped - before.dropped;
+    total.corrupted += now.corrupted - before.corrupted;
+    total.duplicated += now.duplicated - before.duplicated;
+    total.delayed += now.delayed - before.delayed;
+}
+
 impl<T: Transport> Transport for FaultyTransport<T> {
     fn write_all(&mut self, bytes: &[u8]) -> io::Result<()> {
         let mut out = Vec::new();
         self.tx.process(bytes, &self.cfg, &mut out);
         self.tx.release_due(&mut out);
+        self.publish();
         self.inner.write_all(&out)
     }
 
@@ -262,8 +342,80 @@ impl<T: Transport> Transport for FaultyTransport<T> {
             let n = self.inner.read(&mut tmp, wait)?;
             let mut out = Vec::new();
             self.rx.process(tmp.get(..n).unwrap_or(&[]), &self.cfg, &mut out);
+            self.publish();
             self.ready.extend(out);
             self.flush_tx()?;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fault_specs_parse_and_bad_ones_say_why() {
+        let c: FaultConfig = "drop=0.05,corrupt=0.01,seed=9,dir=to-host".parse().unwrap();
+        assert_eq!(
+            (c.drop, c.corrupt, c.seed, c.host_to_device, c.device_to_host),
+            (0.05, 0.01, 9, false, true)
+        );
+        for (spec, why) in [
+            ("drop=2", "probability"),
+            ("jitter=0.1", "unknown key"),
+            ("drop", "KEY=VALUE"),
+            ("drop=0.6,delay=0.6", "more than 1"),
+        ] {
+            let e = spec.parse::<FaultConfig>().unwrap_err();
+            assert!(e.contains(why), "{spec}: {e}");
+        }
+    }
+
+    /// A loopback transport: what is written comes back on read.
+    struct Loop(VecDeque<u8>);
+    impl Transport for Loop {
+        fn write_all(&mut self, b: &[u8]) -> io::Result<()> {
+            self.0.extend(b);
+            Ok(())
+        }
+        fn read(&mut self, buf: &mut [u8], _: Duration) -> io::Result<usize> {
+            let n = buf.len().min(self.0.len());
+            for (s, b) in buf.iter_mut().zip(self.0.drain(..n)) {
+                *s = b;
+            }
+            Ok(n)
+        }
+    }
+
+    #[test]
+    fn the_injector_acts_on_whole_frames_and_is_reproducible() {
+        let frames: Vec<u8> = (1..=200u8).flat_map(|k| [k, k, 0]).collect();
+        let run = |cfg: FaultConfig| {
+            let mut t = FaultyTransport::new(Loop(VecDeque::new()), cfg);
+            t.write_all(&frames).unwrap();
+            let mut got = Vec::new();
+            let mut buf = [0u8; 64];
+            loop {
+                let n = t.read(&mut buf, Duration::from_millis(1)).unwrap();
+                if n == 0 {
+                    break;
+                }
+                got.extend_from_slice(&buf[..n]);
+            }
+            (got, t.counts())
+        };
+        let cfg = FaultConfig {
+            drop: 0.1,
+            duplicate: 0.1,
+            ..FaultConfig::NONE
+        };
+        let (a, counts) = run(cfg);
+        assert_eq!(run(cfg).0, a, "same seed, same faults");
+        assert!(counts.0.dropped > 0 && counts.0.duplicated > 0 && counts.1.dropped > 0);
+        // Every frame that arrives is one that was sent, whole.
+        for f in a.split(|&b| b == 0).filter(|f| !f.is_empty()) {
+            assert!(f.len() == 2 && f[0] == f[1], "{f:?}");
+        }
+        assert_eq!(run(FaultConfig::NONE).0, frames);
     }
 }
