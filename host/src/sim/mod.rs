@@ -35,7 +35,7 @@ pub const DEFAULT_SPEEDUP: f64 = 100.0;
 /// Bytes of device output held for a host that does not read, before the device is throttled.
 const OUT_BACKLOG: usize = 64 * 1024;
 /// Firmware polls between two looks at the pty (bounds the latency of host input).
-const POLLS_PER_SLICE: usize = 20_000;
+const POLLS_PER_SLICE: usize = 2_000;
 
 #[derive(Debug, thiserror::Error)]
 pub enum SimError {
