@@ -413,3 +413,35 @@ fn an_unreachable_direction_is_reported_by_its_plan_index() {
     assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
     assert!(!out.join("measurements.csv").exists());
 }
+
+#[test]
+fn after_a_limit_fault_the_scan_resumes_on_the_same_device_to_the_same_result() {
+    let want = reference(&Fixture::new(N, ""));
+    let fx = Fixture::new(
+        N,
+        "[effects]\nlimit_fault = { axis = \"light\", after_readings = 12 }\n",
+    );
+    let sim = sim_on_link(&fx, 10_000.0);
+    let out = fx.path("fault-resume");
+    let port = fx.path("port");
+    let args = [
+        "measure",
+        "--port",
+        s(&port),
+        "--plan",
+        s(&fx.plan),
+        "--instrument",
+        s(&fx.instrument),
+        "-o",
+        s(&out),
+    ];
+    let o = run(&args);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("LimitSwitch(Light)"));
+    assert_eq!(journal_indices(&out), (0..12).collect::<Vec<u32>>());
+    // The device is in a fault that needs homing; the resumed scan re-homes it and goes on.
+    let o = run(&[&args[..], &["--resume"]].concat());
+    sim.stop();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(csv_without_time(&out.join("measurements.csv")), want);
+}
