@@ -93,6 +93,8 @@ fn five_percent_faults_each_and_all_together_lose_and_duplicate_nothing() {
         clean.iter().all(|(_, c, _)| c.iter().any(|&v| v > 0)),
         "readings are all dark"
     );
+    // Each seed's first fault falls within the first 25 frames of both lanes (a scan sends at least
+    // 35 frames each way), so every case injects in both directions on every run.
     let cases = [
         ("drop", faults(0.05, 0.0, 0.0, 0.0, 11)),
         ("corrupt", faults(0.0, 0.05, 0.0, 0.0, 12)),
