@@ -2,7 +2,7 @@
 
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
-use gonio::journal::{fnv64, Journal};
+use gonio::journal::Journal;
 use gonio::link::{self, Progress, ReopenPath, RunOptions, SerialTransport};
 use gonio::sim::{model::SimModel, SimHandle, DEFAULT_SPEEDUP};
 use std::path::PathBuf;
@@ -103,6 +103,7 @@ pub fn run_measure(a: MeasureArgs) -> Result<()> {
     let plan_bytes = std::fs::read(&a.plan).with_context(|| format!("plan file {}", a.plan.display()))?;
     let plan = gonio::plan::file::decode_plan(&plan_bytes).with_context(|| a.plan.display().to_string())?;
     let total = u32::try_from(plan.len()).map_err(|_| anyhow!("plan too long"))?;
+    let hash = link::plan_hash(&plan).with_context(|| a.plan.display().to_string())?;
     let journal_path = Journal::path_in(&a.out);
     if a.resume && !journal_path.exists() {
         bail!("--resume: {} has no journal to continue", a.out.display());
@@ -140,7 +141,6 @@ pub fn run_measure(a: MeasureArgs) -> Result<()> {
         .map_err(|e| anyhow!("{port}: {e}"))?
         .into_inner();
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
-    let hash = fnv64(&plan_bytes);
     let mut journal = if a.resume {
         Journal::resume(&a.out, hash, total)?
     } else {

@@ -270,17 +270,32 @@ fn wait_for_device(
     Err(RunError::Gone(opts.reconnect_wait.as_secs_f64(), last))
 }
 
-/// (theta, phi) in degrees of a local direction.
-fn angles_deg(v: gonio_shared::vec3::Vec3<f64>) -> (f64, f64) {
-    let theta = v.z.clamp(-1.0, 1.0).acos();
-    let phi = v.y.atan2(v.x);
-    (theta.to_degrees(), phi.to_degrees())
+/// The journal's key for a plan: FNV-1a 64 of its canonical plan-file encoding, so `gonio measure`
+/// (from a file) and a scan (from directions in memory) journal the same plan the same way.
+pub fn plan_hash(directions: &[Direction]) -> Result<u64, crate::plan::file::PlanFileError> {
+    Ok(crate::journal::fnv64(&crate::plan::file::encode_plan(directions)?))
+}
+
+/// The direction pair a reading was really taken at: forward kinematics of its step positions,
+/// `(theta_i, phi_i, theta_o, phi_o)` in radians. On an isotropic instrument the azimuth stage
+/// stays put, so both phis may differ from the requested ones by a common rotation; their
+/// difference is what was measured.
+pub fn reached(kin: &Kinematics<f64>, steps: &[i32; 4]) -> [f64; 4] {
+    let (wi, wo) = kin.forward(&kin.from_steps(steps));
+    let (ti, pi) = angles(wi);
+    let (to, po) = angles(wo);
+    [ti, pi, to, po]
+}
+
+/// (theta, phi) in radians of a local direction.
+fn angles(v: gonio_shared::vec3::Vec3<f64>) -> (f64, f64) {
+    (v.z.clamp(-1.0, 1.0).acos(), v.y.atan2(v.x))
 }
 
 /// `measurements.csv`, written atomically: one row per plan direction measured, by index.
 ///
 /// Columns: `index`, the requested `theta_i,phi_i,theta_o,phi_o` (degrees), the pose reached (the
-/// same four, from forward kinematics of the reported step positions, degrees), the four step
+/// same four, from forward kinematics of the reported step positions, see [`reached`]), the four step
 /// positions, `exposure_us`, `timestamp_us` (device clock of that session), `session`, and one
 /// `count_K` column per detector channel.
 pub fn write_csv(
@@ -301,9 +316,7 @@ pub fn write_csv(
     s.push('\n');
     for (index, r) in journal.records() {
         let Some(d) = plan.get(*index as usize) else { continue };
-        let (wi, wo) = kin.forward(&kin.from_steps(&r.steps));
-        let (ti, pi) = angles_deg(wi);
-        let (to, po) = angles_deg(wo);
+        let [ti, pi, to, po] = reached(&kin, &r.steps).map(f64::to_degrees);
         let _ = write!(
             s,
             "{index},{:.6},{:.6},{:.6},{:.6},{ti:.6},{pi:.6},{to:.6},{po:.6},{},{},{},{},{},{},{}",
