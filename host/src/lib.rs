@@ -4,6 +4,9 @@
 pub mod brdf;
 pub mod fsio;
 pub mod instrument;
+pub mod journal;
+pub mod link;
 pub mod plan;
 pub mod plot;
 pub mod render;
+pub mod sim;

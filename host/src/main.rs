@@ -10,6 +10,8 @@ use gonio_shared::{Axis, AXES};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+mod measure_cli;
+
 #[derive(Parser)]
 #[command(
     name = "gonio",
@@ -38,6 +40,10 @@ enum Command {
     /// Generate the project's environment maps (examples/sky.exr).
     #[command(subcommand)]
     Envmap(EnvmapCmd),
+    /// Run the virtual gonio (real firmware, simulated HAL) on a pseudo-terminal; prints its path.
+    Sim(measure_cli::SimArgs),
+    /// Stream a plan file to a gonio (or the virtual one), journal and collect the measurements.
+    Measure(measure_cli::MeasureArgs),
 }
 
 #[derive(Subcommand)]
@@ -85,6 +91,8 @@ fn run(cli: Cli) -> Result<()> {
         Command::Render(args) => gonio::render::cli::run_render(args),
         Command::Compare(args) => gonio::render::cli::run_compare(args),
         Command::Envmap(cmd) => gonio::render::cli::run_envmap(cmd),
+        Command::Sim(args) => measure_cli::run_sim(args),
+        Command::Measure(args) => measure_cli::run_measure(args),
         Command::Protocol => {
             use gonio_shared::frame::{MAX_PAYLOAD, MAX_WIRE_FRAME};
             use gonio_shared::msg::{caps, PROTOCOL_VERSION, SCHEMA_HASH};
