@@ -1,0 +1,294 @@
+//! The time model and the ordering of directions.
+//!
+//! * Cost of a direction = the synchronised move from the previous pose (`gonio_shared::motion`) +
+//!   settle + exposure (from the instrument file). Settle and exposure are the same for every order;
+//!   only the motion differs.
+//! * The pose of a direction is what the firmware's inverse kinematics picks: the branch nearest
+//!   the current pose. `simulate` replays an order exactly so (this is the plan's time).
+//! * Metric for ordering and bounds: d(a, b) = the smallest synchronised move time over every pose
+//!   that reaches a and every pose that reaches b (`Candidates`: both IK branches, every unwinding).
+//!   Any order's move a -> b takes at least d(a, b), whatever branch the firmware picks.
+//! * Order: nearest neighbour from the start pose, then 2-opt and Or-opt (segments of 1-3) over
+//!   neighbour lists (K nearest by d) until no move improves, on the open path (start fixed, end free).
+//! * Lower bound: a path from the start through all n directions is a spanning tree of those n + 1
+//!   points, so its length under d is at least the minimum spanning tree's (Prim, O(n^2)). With
+//!   levels, each level's segment is an entry edge from some earlier pose plus a path through its new
+//!   directions: bound = sum over levels of (min entry edge + MST of the level's new directions).
+
+use gonio_shared::instrument::{InstrumentConfig, AXES};
+use gonio_shared::kinematics::{Kinematics, Pose, Unreachable};
+use gonio_shared::motion::sync_move_time;
+use gonio_shared::vec3::Vec3;
+use glam::DVec3;
+use std::f64::consts::TAU;
+
+/// How many nearest neighbours the local search looks at.
+const NEIGHBOURS: usize = 10;
+/// An improvement must beat this (seconds) to count, so rounding cannot cycle the search.
+const MIN_GAIN: f64 = 1e-9;
+
+fn v3(w: DVec3) -> Vec3<f64> {
+    Vec3::new(w.x, w.y, w.z)
+}
+
+/// Move time between two poses, with a continuous (unwinding) axis taking the short way as the IK does.
+pub fn move_seconds(cfg: &InstrumentConfig<f64>, from: &Pose<f64>, to: &Pose<f64>) -> f64 {
+    let a = from.to_array();
+    let mut b = to.to_array();
+    for axis in AXES {
+        if cfg.axis(axis).continuous {
+            let i = axis.index();
+            b[i] = a[i] + gonio_shared::real::wrap_pi(b[i] - a[i]);
+        }
+    }
+    sync_move_time(cfg, &a, &b)
+}
+
+/// Every pose that reaches (wi, wo) on this instrument.
+#[derive(Clone, Debug)]
+pub struct Candidates(pub Vec<Pose<f64>>);
+
+impl Candidates {
+    /// All IK solutions: the two plane-normal signs times the detector's unwindings, found by
+    /// asking the shared IK from a probe pose near each (it returns the valid solution nearest the
+    /// probe, so every returned pose is one the firmware could pick).
+    pub fn of(kin: &Kinematics<f64>, wi: DVec3, wo: DVec3) -> Result<Self, Unreachable> {
+        let rest = kin.rest_pose();
+        let first = kin.inverse(v3(wi), v3(wo), &rest)?;
+        // The other branch: the plane normal flipped negates tilt and both arm angles (and the arms'
+        // separation becomes 2 pi - separation).
+        let sep = first.light - first.detector;
+        let mut probes = Vec::new();
+        for (tilt, det, sep) in [
+            (first.tilt, first.detector, sep),
+            (-first.tilt, -first.detector, TAU - sep),
+        ] {
+            for k in [-1.0, 0.0, 1.0] {
+                let detector = det + k * TAU;
+                probes.push(Pose {
+                    light: detector + sep,
+                    detector,
+                    tilt,
+                    azimuth: first.azimuth,
+                });
+            }
+        }
+        let mut out: Vec<Pose<f64>> = vec![first];
+        for p in probes {
+            if let Ok(q) = kin.inverse(v3(wi), v3(wo), &p) {
+                let same = |a: &Pose<f64>| {
+                    a.to_array()
+                        .iter()
+                        .zip(q.to_array().iter())
+                        .all(|(x, y)| (x - y).abs() < 1e-9)
+                };
+                if !out.iter().any(same) {
+                    out.push(q);
+                }
+            }
+        }
+        Ok(Self(out))
+    }
+}
+
+/// d(a, b): the least move time between any pose of a and any pose of b.
+pub fn metric(cfg: &InstrumentConfig<f64>, a: &Candidates, b: &Candidates) -> f64 {
+    let mut best = f64::INFINITY;
+    for p in &a.0 {
+        for q in &b.0 {
+            best = best.min(move_seconds(cfg, p, q));
+        }
+    }
+    best
+}
+
+/// The poses and move times the firmware would produce for `order`, starting at `start`.
+pub fn simulate(
+    kin: &Kinematics<f64>,
+    start: Pose<f64>,
+    pairs: &[(DVec3, DVec3)],
+) -> Result<(Vec<Pose<f64>>, Vec<f64>), (usize, Unreachable)> {
+    let cfg = kin.config();
+    let mut current = start;
+    let mut poses = Vec::with_capacity(pairs.len());
+    let mut moves = Vec::with_capacity(pairs.len());
+    for (idx, &(wi, wo)) in pairs.iter().enumerate() {
+        let p = kin.inverse(v3(wi), v3(wo), &current).map_err(|e| (idx, e))?;
+        kin.check_pose(&p).map_err(|e| (idx, e))?;
+        moves.push(move_seconds(cfg, &current, &p));
+        poses.push(p);
+        current = p;
+    }
+    Ok((poses, moves))
+}
+
+/// Points for ordering: index 0 is the fixed start, 1..=n the directions.
+struct Points<'a> {
+    cfg: &'a InstrumentConfig<f64>,
+    pts: Vec<&'a Candidates>,
+}
+
+impl Points<'_> {
+    fn d(&self, a: usize, b: usize) -> f64 {
+        metric(self.cfg, self.pts[a], self.pts[b])
+    }
+
+    fn neighbours(&self) -> Vec<Vec<usize>> {
+        let n = self.pts.len();
+        (0..n)
+            .map(|a| {
+                let mut row: Vec<(f64, usize)> = (0..n).filter(|&b| b != a).map(|b| (self.d(a, b), b)).collect();
+                let k = NEIGHBOURS.min(row.len());
+                if k > 0 && k < row.len() {
+                    row.select_nth_unstable_by(k - 1, |x, y| x.0.total_cmp(&y.0));
+                }
+                row.truncate(k);
+                row.into_iter().map(|(_, b)| b).collect()
+            })
+            .collect()
+    }
+}
+
+/// Order `items` (candidate sets of the directions) starting from the pose set `start`: returns a
+/// permutation of 0..items.len().
+pub fn optimise(cfg: &InstrumentConfig<f64>, start: &Candidates, items: &[Candidates]) -> Vec<usize> {
+    let n = items.len();
+    if n <= 1 {
+        return (0..n).collect();
+    }
+    let mut pts = vec![start];
+    pts.extend(items.iter());
+    let p = Points { cfg, pts };
+    // Nearest neighbour.
+    let mut path = vec![0usize];
+    let mut used = vec![false; n + 1];
+    used[0] = true;
+    for _ in 0..n {
+        let last = path[path.len() - 1];
+        let next = (1..=n)
+            .filter(|&b| !used[b])
+            .min_by(|&x, &y| p.d(last, x).total_cmp(&p.d(last, y)))
+            .unwrap_or(0);
+        used[next] = true;
+        path.push(next);
+    }
+    let nb = p.neighbours();
+    local_search(&p, &nb, &mut path);
+    path[1..].iter().map(|&i| i - 1).collect()
+}
+
+fn edge(p: &Points, path: &[usize], a: usize) -> f64 {
+    if a + 1 < path.len() {
+        p.d(path[a], path[a + 1])
+    } else {
+        0.0
+    }
+}
+
+fn local_search(p: &Points, nb: &[Vec<usize>], path: &mut Vec<usize>) {
+    let len = path.len();
+    let mut pos = vec![0usize; len];
+    let reindex = |path: &[usize], pos: &mut [usize]| {
+        for (i, &c) in path.iter().enumerate() {
+            pos[c] = i;
+        }
+    };
+    reindex(path, &mut pos);
+    for _round in 0..50 {
+        let mut improved = false;
+        // 2-opt: reverse path[a+1..=b] so that path[a] meets path[b].
+        for a in 0..len - 1 {
+            for &c in &nb[path[a]] {
+                let b = pos[c];
+                if b <= a + 1 {
+                    continue;
+                }
+                let old = edge(p, path, a) + edge(p, path, b);
+                let new = p.d(path[a], path[b]) + if b + 1 < len { p.d(path[a + 1], path[b + 1]) } else { 0.0 };
+                if old - new > MIN_GAIN {
+                    path[a + 1..=b].reverse();
+                    reindex(path, &mut pos);
+                    improved = true;
+                    break;
+                }
+            }
+        }
+        // Or-opt: move a segment of 1-3 (maybe reversed) next to a neighbour of its first node.
+        for s in 1..=3usize {
+            let mut i = 1;
+            while i + s <= len {
+                let seg: Vec<usize> = path[i..i + s].to_vec();
+                let (first, last) = (seg[0], seg[s - 1]);
+                let prev = path[i - 1];
+                let next = path.get(i + s).copied();
+                let removed_gain = p.d(prev, first) + next.map_or(0.0, |x| p.d(last, x)) - next.map_or(0.0, |x| p.d(prev, x));
+                let mut best: Option<(f64, usize, bool)> = None;
+                for &c in &nb[first] {
+                    let j = pos[c];
+                    if (i..i + s).contains(&j) || j + 1 == i {
+                        continue;
+                    }
+                    // Insert between path[j] and path[j + 1] (or at the end).
+                    let after = path.get(j + 1).copied().filter(|&x| x != first);
+                    for reversed in [false, true] {
+                        let (h, t) = if reversed { (last, first) } else { (first, last) };
+                        let add = p.d(c, h) + after.map_or(0.0, |x| p.d(t, x)) - after.map_or(0.0, |x| p.d(c, x));
+                        let gain = removed_gain - add;
+                        if gain > MIN_GAIN && best.is_none_or(|(g, _, _)| gain > g) {
+                            best = Some((gain, j, reversed));
+                        }
+                    }
+                }
+                if let Some((_, j, reversed)) = best {
+                    let target = path[j];
+                    let mut seg = seg;
+                    if reversed {
+                        seg.reverse();
+                    }
+                    path.drain(i..i + s);
+                    let at = path.iter().position(|&x| x == target).map_or(path.len(), |q| q + 1);
+                    for (o, c) in seg.into_iter().enumerate() {
+                        path.insert(at + o, c);
+                    }
+                    reindex(path, &mut pos);
+                    improved = true;
+                }
+                i += 1;
+            }
+        }
+        if !improved {
+            break;
+        }
+    }
+}
+
+/// Length under d of the minimum spanning tree of `items` (Prim, O(n^2)).
+pub fn mst_seconds(cfg: &InstrumentConfig<f64>, items: &[&Candidates]) -> f64 {
+    let n = items.len();
+    if n <= 1 {
+        return 0.0;
+    }
+    let mut in_tree = vec![false; n];
+    let mut best = vec![f64::INFINITY; n];
+    best[0] = 0.0;
+    let mut total = 0.0;
+    for _ in 0..n {
+        let Some(u) = (0..n)
+            .filter(|&i| !in_tree[i])
+            .min_by(|&a, &b| best[a].total_cmp(&best[b]))
+        else {
+            break;
+        };
+        in_tree[u] = true;
+        total += best[u];
+        for v in 0..n {
+            if !in_tree[v] {
+                let d = metric(cfg, items[u], items[v]);
+                if d < best[v] {
+                    best[v] = d;
+                }
+            }
+        }
+    }
+    total
+}

@@ -1,0 +1,1 @@
+//! The accuracy-vs-time report.
