@@ -5,4 +5,5 @@ pub mod brdf;
 pub mod fsio;
 pub mod instrument;
 pub mod plan;
+pub mod plot;
 pub mod render;
