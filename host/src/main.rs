@@ -38,6 +38,10 @@ enum Command {
     /// Generate the project's environment maps (examples/sky.exr).
     #[command(subcommand)]
     Envmap(EnvmapCmd),
+    /// Plan a measurement: ordered, timed, encoded directions for an estimated material.
+    Plan(gonio::plan::cli::PlanArgs),
+    /// Accuracy vs time: strategies, levels, stopping rules, spacings and orders on a set of materials.
+    PlanReport(gonio::plan::cli::PlanReportArgs),
 }
 
 #[derive(Subcommand)]
@@ -85,6 +89,8 @@ fn run(cli: Cli) -> Result<()> {
         Command::Render(args) => gonio::render::cli::run_render(args),
         Command::Compare(args) => gonio::render::cli::run_compare(args),
         Command::Envmap(cmd) => gonio::render::cli::run_envmap(cmd),
+        Command::Plan(args) => gonio::plan::cli::run_plan(args),
+        Command::PlanReport(args) => gonio::plan::cli::run_plan_report(args),
         Command::Protocol => {
             use gonio_shared::frame::{MAX_PAYLOAD, MAX_WIRE_FRAME};
             use gonio_shared::msg::{caps, PROTOCOL_VERSION, SCHEMA_HASH};

@@ -223,6 +223,17 @@ pub struct LevelSummary {
     pub cumulative_raster_seconds: f64,
 }
 
+/// A plan's totals (optimised order, raster order, bound).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct PlanSummary {
+    pub directions: usize,
+    pub total_seconds: f64,
+    pub motion_seconds: f64,
+    pub raster_total_seconds: f64,
+    pub raster_motion_seconds: f64,
+    pub lower_bound_motion_seconds: f64,
+}
+
 /// Nodes dropped by the unreachable rule, by reason (unique directions).
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct Dropped {
@@ -461,6 +472,31 @@ impl Plan {
     /// The plan up to `level` (its directions are a prefix of the order).
     pub fn level(&self, level: usize) -> Option<&LevelSummary> {
         self.levels.get(level.checked_sub(1)?)
+    }
+
+    /// The plan up to and including `level` (a prefix of the order; later levels dropped).
+    pub fn truncate(mut self, level: usize) -> Plan {
+        let level = level.clamp(1, self.levels.len().max(1));
+        if let Some(l) = self.levels.get(level - 1) {
+            let keep = l.cumulative_directions;
+            self.directions.truncate(keep);
+            self.node_dir.retain(|_, d| *d < keep);
+        }
+        self.levels.truncate(level);
+        self
+    }
+
+    /// Totals over the plan's levels.
+    pub fn summary(&self) -> PlanSummary {
+        let sum = |f: fn(&LevelSummary) -> f64| self.levels.iter().map(f).sum::<f64>();
+        PlanSummary {
+            directions: self.directions.len(),
+            total_seconds: self.total_seconds(),
+            motion_seconds: sum(|l| l.motion_seconds),
+            raster_total_seconds: self.levels.last().map_or(0.0, |l| l.cumulative_raster_seconds),
+            raster_motion_seconds: sum(|l| l.raster_motion_seconds),
+            lower_bound_motion_seconds: sum(|l| l.lower_bound_motion_seconds),
+        }
     }
 
     /// The deepest level whose whole plan (move + settle + exposure) fits `budget` seconds.
