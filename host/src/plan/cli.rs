@@ -148,7 +148,7 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
         let mut chosen = None;
         for l in &plan.levels {
             let img = scorer.render(Box::new(plan.reconstruct(l.level, &values)?));
-            let (c, _) = crate::render::metrics::compare(&reference, &img)?;
+            let c = report::score(&reference, &img)?;
             let ok_psnr = args.target_psnr.is_none_or(|t| c.psnr >= t);
             let ok_flip = args.target_flip.is_none_or(|t| c.flip <= t);
             if ok_psnr && ok_flip {

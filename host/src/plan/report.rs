@@ -5,7 +5,7 @@
 //!
 //! Scoring: the capture scene (`examples/sphere-point.toml`: a sphere under a point light, rendered
 //! at `size` pixels) of the reconstruction against that of the ground truth, with `render::metrics`
-//! (RMSE, PSNR of the tone-mapped image, mean FLIP); and `brdf_log_err`, the mean over the fit's
+//! (RMSE and PSNR of the 8-bit sRGB images as the paper computed them, mean LDR FLIP); and `brdf_log_err`, the mean over the fit's
 //! documented direction set (`fit::fit_directions`) of |log(1 + f cos) - log(1 + f_rec cos)| over
 //! RGB (Liu et al. 2023), which no single highlight pixel dominates.
 //! Cost: planning is O(n^2) in the n directions of a level (neighbour lists, spanning tree);
@@ -98,10 +98,22 @@ impl Scorer {
     }
 }
 
-fn score(reference: &Image, test: &Image) -> Result<Comparison, PlanError> {
-    compare(reference, test)
-        .map(|(c, _)| c)
-        .map_err(|e| PlanError::Invalid(e.to_string()))
+/// RMSE and PSNR of the 8-bit sRGB images (exposure 1, clipped, values / 255, peak 1, whole image),
+/// as the paper computed them, and the renderer's mean LDR FLIP.
+pub fn score(reference: &Image, test: &Image) -> Result<Comparison, PlanError> {
+    let (c, _) = compare(reference, test).map_err(|e| PlanError::Invalid(e.to_string()))?;
+    let (a, b) = (reference.to_srgb8(), test.to_srgb8());
+    let sq: f64 = a
+        .iter()
+        .zip(&b)
+        .map(|(&x, &y)| ((x as f64 - y as f64) / 255.0).powi(2))
+        .sum();
+    let rmse = (sq / a.len().max(1) as f64).sqrt();
+    Ok(Comparison {
+        rmse,
+        psnr: crate::render::metrics::psnr(rmse),
+        flip: c.flip,
+    })
 }
 
 /// One row of `plan-report.csv`.
@@ -402,7 +414,7 @@ fn markdown(cfg: &ReportConfig, rows: &[Row], spacing: &[Row], stops: &[StopChoi
         "# Planner: accuracy vs time\n\nRegenerate: `gonio plan-report -o DIR --max-grid {} --incoming {} --size {}{}`.\n\
          Ground truth: the material itself (MERL materials: their neural fits). Estimate: analytic materials are their own \
          estimate; MERL materials get the GGX fit (`gonio brdf fit`), standing in for the encoder. Scores: capture scene \
-         (`examples/sphere-point.toml`, {} px) of the reconstruction against the truth (RMSE, PSNR, mean FLIP), and \
+         (`examples/sphere-point.toml`, {} px) of the reconstruction against the truth (RMSE and PSNR of the 8-bit sRGB images, mean LDR FLIP), and \
          `brdf_log_err` over the fit's direction set. Times: replay of the firmware's IK with the shared motion profile \
          plus settle and exposure from `examples/gonio.toml`.\n",
         1usize << cfg.max_level,

@@ -153,6 +153,9 @@ impl Marginal2D {
 /// Weight of the plain visible-normal density in the mixture (eq. 6's w_s): the share of nodes that
 /// stay where the pure-specular warp would put them, so a misestimated lobe still gets samples.
 pub const MIXTURE_SPECULAR_WEIGHT: f64 = 0.25;
+/// Weight of the equal-angle density (the uniform grid's layout): coverage of directions that
+/// neither the estimate nor the peak would visit, where a misestimated material may still reflect.
+pub const MIXTURE_UNIFORM_WEIGHT: f64 = 0.25;
 /// Smallest alpha the mixture's visible-normal base uses. Below it, the whole hemisphere outside
 /// the peak maps into a sliver of u.x near 1 narrower than any table could resolve; the table then
 /// puts the peak's mass back where the estimate says it is.
@@ -162,10 +165,11 @@ pub const MIXTURE_BASE_ALPHA_MIN: f64 = 0.02;
 const TABLE_FLOOR: f64 = 1e-4;
 
 /// eq. 6 of Cao et al. as a bijection: wo = vndf(T(u)) with T a `Marginal2D` whose density in the
-/// visible-normal warp's u-space is (1 - w_s) f cos / p_vndf (normalised) + w_s (normalised over the
-/// part of the square that lands above the horizon), so that the composed density over wo is
-/// p = (1 - w_s) p_fcos + w_s p_vndf: the estimated material's whole lobe, diffuse base included,
-/// plus the plain specular layout. pdf(wo) = T's density at vndf^-1(wo) times p_vndf(wo).
+/// visible-normal warp's u-space is w_f f cos / p_vndf + w_s + w_u p_angles / p_vndf (each part
+/// normalised over the square, the w_s part over where the base lands above the horizon), so that
+/// the composed density over wo is p = w_f p_fcos + w_s p_vndf + w_u p_angles: the estimated
+/// material's whole lobe, diffuse base included, plus the plain specular layout, plus the
+/// equal-angle layout as a defensive share. pdf(wo) = T's density at vndf^-1(wo) times p_vndf(wo).
 #[derive(Clone, Debug)]
 pub struct MixtureWarp {
     base: GgxVndf,
@@ -182,6 +186,7 @@ impl MixtureWarp {
         let (nx, ny) = (xs.len(), ys.len());
         let mut fcos = vec![0.0; nx * ny];
         let mut valid = vec![0.0; nx * ny];
+        let mut angles = vec![0.0; nx * ny];
         for (iy, &y) in ys.iter().enumerate() {
             for (ix, &x) in xs.iter().enumerate() {
                 if let Some(wo) = base.sample(DVec2::new(x, y)) {
@@ -191,6 +196,7 @@ impl MixtureWarp {
                     // ratio has no value: such a vertex carries only the specular share.
                     if p > 0.0 && g.is_finite() {
                         fcos[iy * nx + ix] = g / p;
+                        angles[iy * nx + ix] = UniformAngles.pdf(wo) / p;
                     }
                     valid[iy * nx + ix] = 1.0;
                 }
@@ -206,13 +212,20 @@ impl MixtureWarp {
             }
             s
         };
-        let (fi, vi) = (integral(&fcos), integral(&valid));
-        let w_s = if fi > 0.0 { MIXTURE_SPECULAR_WEIGHT } else { 1.0 };
+        let (fi, vi, ai) = (integral(&fcos), integral(&valid), integral(&angles));
+        // A black estimate has no f cos share; its weight goes to the specular layout.
+        let (w_s, w_u) = if fi > 0.0 {
+            (MIXTURE_SPECULAR_WEIGHT, MIXTURE_UNIFORM_WEIGHT)
+        } else {
+            (1.0 - MIXTURE_UNIFORM_WEIGHT, MIXTURE_UNIFORM_WEIGHT)
+        };
+        let w_f = 1.0 - w_s - w_u;
         let mut values: Vec<f64> = (0..nx * ny)
             .map(|k| {
-                let f = if fi > 0.0 { (1.0 - w_s) * fcos[k] / fi } else { 0.0 };
+                let f = if fi > 0.0 { w_f * fcos[k] / fi } else { 0.0 };
                 let s = if vi > 0.0 { w_s * valid[k] / vi } else { 1.0 };
-                f + s
+                let a = if ai > 0.0 { w_u * angles[k] / ai } else { 0.0 };
+                f + s + a
             })
             .collect();
         let mean = values.iter().sum::<f64>() / values.len() as f64;
@@ -479,7 +492,7 @@ mod tests {
 
     /// The point of the mixture: for a sharp peak on a diffuse base, the pure visible-normal warp
     /// leaves the diffuse hemisphere almost empty; the mixture puts about its f cos share there
-    /// (diffuse albedo 0.3 against a specular lobe of ~1, times 1 - w_s: ~0.17).
+    /// (diffuse albedo 0.3 against a specular lobe of ~1, times w_f, plus most of w_u: ~0.3).
     #[test]
     fn mixture_covers_the_diffuse_base() {
         let (_, mat, alpha) = materials()[0].clone();
