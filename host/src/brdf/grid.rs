@@ -102,8 +102,8 @@ impl MeasurementGrid {
             .iter()
             .map(|&t| warp.for_incident(from_spherical(t, 0.0)))
             .collect();
-        let mut grid = Self::from_slices(slices, NodeLayout::Endpoints, theta_i, n, m, values, valid)
-            .map_err(|e| match e {
+        let mut grid =
+            Self::from_slices(slices, NodeLayout::Endpoints, theta_i, n, m, values, valid).map_err(|e| match e {
                 BrdfError::Grid(msg) if msg == MIRROR_MSG => bad(format!(
                     "warp {warp} is in the mirror limit (alpha < {MIRROR_ALPHA}) and has no inverse"
                 )),

@@ -34,7 +34,7 @@ pub struct PlanArgs {
     pub max_grid: usize,
     #[arg(long, value_enum, default_value_t = Strategy::Mixture)]
     pub strategy: Strategy,
-    #[arg(long, value_enum, default_value_t = Spacing::Cosine)]
+    #[arg(long, value_enum, default_value_t = Spacing::Angle)]
     pub spacing: Spacing,
     /// Number of incoming elevations.
     #[arg(long, default_value_t = 8)]
@@ -159,7 +159,10 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
         match chosen {
             Some(l) => (l, "predictive (simulated on the estimate)".to_string()),
             None => {
-                eprintln!("warning: no level up to --max-grid {} meets the target; using the deepest", args.max_grid);
+                eprintln!(
+                    "warning: no level up to --max-grid {} meets the target; using the deepest",
+                    args.max_grid
+                );
                 (max_level, "predictive: target not met, deepest level".to_string())
             }
         }

@@ -167,7 +167,8 @@ impl Default for PlanConfig {
     fn default() -> Self {
         Self {
             strategy: Strategy::Mixture,
-            spacing: Spacing::Cosine,
+            // Equal angle steps beat cosine and RGL steps on every material of the report.
+            spacing: Spacing::Angle,
             k: crate::brdf::grid::DEFAULT_K,
             max_level: 4,
         }
@@ -379,12 +380,11 @@ impl Planner {
             let items: Vec<Candidates> = gen[a..b].iter().map(|g| g.6.clone()).collect();
             let perm = order::optimise(&cfg, &cur_c, &items);
             let pairs: Vec<(DVec3, DVec3)> = perm.iter().map(|&p| (gen[a + p].4, gen[a + p].5)).collect();
-            let (poses, moves) = order::simulate(&self.kin, cur, &pairs).map_err(|(i, reason)| {
-                PlanError::Unreachable {
+            let (poses, moves) =
+                order::simulate(&self.kin, cur, &pairs).map_err(|(i, reason)| PlanError::Unreachable {
                     index: directions.len() + i,
                     reason,
-                }
-            })?;
+                })?;
             let raster_pairs: Vec<(DVec3, DVec3)> = gen[a..b].iter().map(|g| (g.4, g.5)).collect();
             let (rposes, rmoves) = order::simulate(&self.kin, cur_raster, &raster_pairs)
                 .map_err(|(i, reason)| PlanError::Unreachable { index: a + i, reason })?;
@@ -565,7 +565,9 @@ impl Plan {
     pub fn check_encoded(&self, instrument: &InstrumentConfig<f64>, bytes: &[u8]) -> Result<f64, PlanError> {
         let decoded = file::decode_plan(bytes)?;
         if decoded != self.wire() {
-            return Err(PlanError::Invalid("encoded plan does not decode to the planned directions".into()));
+            return Err(PlanError::Invalid(
+                "encoded plan does not decode to the planned directions".into(),
+            ));
         }
         let cfg32 = instrument.cast::<f32>();
         let kin = Kinematics::<f32>::new(cfg32).map_err(|e| PlanError::Invalid(format!("instrument: {e:?}")))?;

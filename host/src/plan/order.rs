@@ -15,11 +15,11 @@
 //!   levels, each level's segment is an entry edge from some earlier pose plus a path through its new
 //!   directions: bound = sum over levels of (min entry edge + MST of the level's new directions).
 
+use glam::DVec3;
 use gonio_shared::instrument::{InstrumentConfig, AXES};
 use gonio_shared::kinematics::{Kinematics, Pose, Unreachable};
 use gonio_shared::motion::sync_move_time;
 use gonio_shared::vec3::Vec3;
-use glam::DVec3;
 use std::f64::consts::TAU;
 
 /// How many nearest neighbours the local search looks at.
@@ -102,12 +102,16 @@ pub fn metric(cfg: &InstrumentConfig<f64>, a: &Candidates, b: &Candidates) -> f6
     best
 }
 
-/// The poses and move times the firmware would produce for `order`, starting at `start`.
+/// Poses and move times of a replay.
+pub type Replay = (Vec<Pose<f64>>, Vec<f64>);
+
+/// The poses and move times the firmware would produce for `order`, starting at `start`; on
+/// failure, the index of the first unreachable direction and why.
 pub fn simulate(
     kin: &Kinematics<f64>,
     start: Pose<f64>,
     pairs: &[(DVec3, DVec3)],
-) -> Result<(Vec<Pose<f64>>, Vec<f64>), (usize, Unreachable)> {
+) -> Result<Replay, (usize, Unreachable)> {
     let cfg = kin.config();
     let mut current = start;
     let mut poses = Vec::with_capacity(pairs.len());
@@ -204,7 +208,12 @@ fn local_search(p: &Points, nb: &[Vec<usize>], path: &mut Vec<usize>) {
                     continue;
                 }
                 let old = edge(p, path, a) + edge(p, path, b);
-                let new = p.d(path[a], path[b]) + if b + 1 < len { p.d(path[a + 1], path[b + 1]) } else { 0.0 };
+                let new = p.d(path[a], path[b])
+                    + if b + 1 < len {
+                        p.d(path[a + 1], path[b + 1])
+                    } else {
+                        0.0
+                    };
                 if old - new > MIN_GAIN {
                     path[a + 1..=b].reverse();
                     reindex(path, &mut pos);
@@ -221,7 +230,8 @@ fn local_search(p: &Points, nb: &[Vec<usize>], path: &mut Vec<usize>) {
                 let (first, last) = (seg[0], seg[s - 1]);
                 let prev = path[i - 1];
                 let next = path.get(i + s).copied();
-                let removed_gain = p.d(prev, first) + next.map_or(0.0, |x| p.d(last, x)) - next.map_or(0.0, |x| p.d(prev, x));
+                let removed_gain =
+                    p.d(prev, first) + next.map_or(0.0, |x| p.d(last, x)) - next.map_or(0.0, |x| p.d(prev, x));
                 let mut best: Option<(f64, usize, bool)> = None;
                 for &c in &nb[first] {
                     let j = pos[c];

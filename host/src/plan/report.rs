@@ -47,6 +47,8 @@ pub struct ReportConfig {
     pub flip_targets: Vec<f64>,
     /// Level at which the incoming spacings are compared.
     pub spacing_level: usize,
+    /// Incoming spacing of the strategy comparison.
+    pub spacing: Spacing,
 }
 
 impl Default for ReportConfig {
@@ -58,6 +60,7 @@ impl Default for ReportConfig {
             size: 128,
             flip_targets: vec![0.1, 0.05],
             spacing_level: 3,
+            spacing: Spacing::Angle,
         }
     }
 }
@@ -346,7 +349,7 @@ pub fn run(
         for strategy in [Strategy::Specular, Strategy::Mixture, Strategy::Uniform] {
             let config = PlanConfig {
                 strategy,
-                spacing: Spacing::Cosine,
+                spacing: cfg.spacing,
                 k: cfg.k,
                 max_level: cfg.max_level,
             };
@@ -412,6 +415,7 @@ fn markdown(cfg: &ReportConfig, rows: &[Row], spacing: &[Row], stops: &[StopChoi
     let _ = writeln!(
         s,
         "# Planner: accuracy vs time\n\nRegenerate: `gonio plan-report -o DIR --max-grid {} --incoming {} --size {}{}`.\n\
+         Strategies compared with {} incoming spacing.\n\
          Ground truth: the material itself (MERL materials: their neural fits). Estimate: analytic materials are their own \
          estimate; MERL materials get the GGX fit (`gonio brdf fit`), standing in for the encoder. Scores: capture scene \
          (`examples/sphere-point.toml`, {} px) of the reconstruction against the truth (RMSE and PSNR of the 8-bit sRGB images, mean LDR FLIP), and \
@@ -424,6 +428,7 @@ fn markdown(cfg: &ReportConfig, rows: &[Row], spacing: &[Row], stops: &[StopChoi
             .iter()
             .map(|m| format!(" --material {m}"))
             .collect::<String>(),
+        cfg.spacing,
         cfg.size
     );
     let _ = writeln!(s, "## Error per level\n\n| material | strategy | grid | directions | gonio min | PSNR | FLIP | brdf_log_err |\n|---|---|---|---|---|---|---|---|");
@@ -552,15 +557,18 @@ fn charts(dir: &Path, cfg: &ReportConfig, rows: &[Row]) -> Result<(), PlanError>
     let mut ord = Chart::new("Motion time per plan", "directions", "motion minutes");
     ord.x_log = true;
     ord.y_log = true;
-    let pick = |f: fn(&Row) -> f64| -> Vec<(f64, f64)> {
-        rows.iter().map(|r| (r.directions as f64, f(r) / 60.0)).collect()
-    };
+    let pick =
+        |f: fn(&Row) -> f64| -> Vec<(f64, f64)> { rows.iter().map(|r| (r.directions as f64, f(r) / 60.0)).collect() };
     ord.series = vec![
         Series::new("raster order", pick(|r| r.raster_motion_seconds), Mark::Points),
         Series::new("optimised order", pick(|r| r.motion_seconds), Mark::Points),
         Series::new("lower bound", pick(|r| r.lower_bound_motion_seconds), Mark::Points),
     ];
-    for (chart, name) in [(flip, "plan-flip.png"), (log, "plan-logerr.png"), (ord, "plan-order.png")] {
+    for (chart, name) in [
+        (flip, "plan-flip.png"),
+        (log, "plan-logerr.png"),
+        (ord, "plan-order.png"),
+    ] {
         crate::plot::write_png(&chart, &dir.join(name)).map_err(|e| PlanError::Invalid(e.to_string()))?;
     }
     Ok(())

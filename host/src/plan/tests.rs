@@ -31,7 +31,11 @@ fn levels_nest_and_reuse_every_direction() {
             let stride = fine / l.n;
             for (&(_, i, j), &d) in &plan.node_dir {
                 if i % stride == 0 && j % stride == 0 {
-                    assert!(d < l.cumulative_directions, "{strategy} level {}: node uses {d}", l.level);
+                    assert!(
+                        d < l.cumulative_directions,
+                        "{strategy} level {}: node uses {d}",
+                        l.level
+                    );
                 }
             }
         }
@@ -70,7 +74,10 @@ fn plans_hold_only_reachable_poses_and_encode_checked() {
         let replay = plan.check_encoded(&cfg, &bytes).expect("check");
         let motion: f64 = plan.levels.iter().map(|l| l.motion_seconds).sum();
         // f32 directions and f32 IK: the replay agrees with the f64 plan to well under a percent.
-        assert!((replay - motion).abs() < 1e-3 * motion, "{strategy}: {replay} vs {motion}");
+        assert!(
+            (replay - motion).abs() < 1e-3 * motion,
+            "{strategy}: {replay} vs {motion}"
+        );
         // A damaged file is refused.
         let mut bad = bytes.clone();
         bad[5] ^= 0x40;
@@ -92,7 +99,11 @@ fn optimised_time_is_the_sum_of_its_moves_and_respects_the_bound() {
             + cfg.exposure_us as f64 * 1e-6;
         prev = d.pose;
     }
-    assert!((total - plan.total_seconds()).abs() < 1e-9 * total, "{total} vs {}", plan.total_seconds());
+    assert!(
+        (total - plan.total_seconds()).abs() < 1e-9 * total,
+        "{total} vs {}",
+        plan.total_seconds()
+    );
     for l in &plan.levels {
         println!(
             "level {} ({} new): optimised {:.1} s, raster {:.1} s, bound {:.1} s",
@@ -110,7 +121,7 @@ fn candidates_hold_every_pose_the_ik_can_pick() {
     let mut checked = 0;
     for _ in 0..300 {
         let wi = from_spherical(rng.random::<f64>() * 1.5, 0.0);
-        let wo = from_spherical(rng.random::<f64>() * 1.5, rng.random::<f64>() * 6.28);
+        let wo = from_spherical(rng.random::<f64>() * 1.5, rng.random::<f64>() * std::f64::consts::TAU);
         let Ok(c) = Candidates::of(&kin, wi, wo) else { continue };
         for _ in 0..10 {
             let cur = Pose {

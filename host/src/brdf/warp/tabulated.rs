@@ -46,9 +46,8 @@ impl Marginal2D {
     /// `values[iy * xs.len() + ix]` at vertex (xs[ix], ys[iy]); xs and ys increase strictly from 0 to 1.
     pub fn new(xs: Vec<f64>, ys: Vec<f64>, values: Vec<f64>) -> Result<Self, String> {
         let (nx, ny) = (xs.len(), ys.len());
-        let axis_ok = |v: &[f64]| {
-            v.len() >= 2 && v[0] == 0.0 && v[v.len() - 1] == 1.0 && v.windows(2).all(|w| w[0] < w[1])
-        };
+        let axis_ok =
+            |v: &[f64]| v.len() >= 2 && v[0] == 0.0 && v[v.len() - 1] == 1.0 && v.windows(2).all(|w| w[0] < w[1]);
         if !axis_ok(&xs) || !axis_ok(&ys) {
             return Err("Marginal2D: vertex positions must increase strictly from 0 to 1".into());
         }
@@ -109,7 +108,11 @@ impl Marginal2D {
     pub fn sample(&self, u: DVec2) -> DVec2 {
         let u = clamp_u(u);
         // Marginal in x: the cell whose CDF interval holds u.x, then the quadratic within it.
-        let i = self.x_cdf.partition_point(|&c| c <= u.x).saturating_sub(1).min(self.nx() - 2);
+        let i = self
+            .x_cdf
+            .partition_point(|&c| c <= u.x)
+            .saturating_sub(1)
+            .min(self.nx() - 2);
         let (a, b) = (self.col_mass[i], self.col_mass[i + 1]);
         let h = self.xs[i + 1] - self.xs[i];
         let tx = linear_cell_inverse(a, b, h, u.x - self.x_cdf[i]);
@@ -179,7 +182,11 @@ pub struct MixtureWarp {
 impl MixtureWarp {
     /// Tabulate `estimate` for `wi` on a `res` x `res` vertex grid (x graded, see `table_xs`).
     pub fn new(wi: DVec3, alpha: f64, estimate: &dyn Material, res: usize) -> Self {
-        let base_alpha = if alpha.is_finite() { alpha.max(MIXTURE_BASE_ALPHA_MIN) } else { 1.0 };
+        let base_alpha = if alpha.is_finite() {
+            alpha.max(MIXTURE_BASE_ALPHA_MIN)
+        } else {
+            1.0
+        };
         let base = GgxVndf::new(wi, base_alpha);
         let xs = table_xs(base_alpha, res.max(4));
         let ys: Vec<f64> = (0..res.max(4)).map(|j| j as f64 / (res.max(4) - 1) as f64).collect();
@@ -402,7 +409,10 @@ mod tests {
                         assert!(p.is_finite() && p >= 0.0, "{name} {t}: pdf {p}");
                         let back = w.invert(wo).unwrap_or_else(|| panic!("{name} {t}: no inverse of {wo}"));
                         let again = w.sample(back).expect("valid");
-                        assert!((again - wo).length() < 1e-7, "{name} {t}: {u} -> {wo} -> {back} -> {again}");
+                        assert!(
+                            (again - wo).length() < 1e-7,
+                            "{name} {t}: {u} -> {wo} -> {back} -> {again}"
+                        );
                         valid += 1;
                     }
                 }
@@ -422,7 +432,8 @@ mod tests {
     #[test]
     fn mixture_and_uniform_chi_square() {
         let mats = materials();
-        let cases: Vec<(String, Box<dyn Warp>)> = [0.0_f64, 40.0, 80.0]
+        // theta_i 0 and 70 deg: the quadrature of a tabulated pdf is the slow part of this test.
+        let cases: Vec<(String, Box<dyn Warp>)> = [0.0_f64, 70.0]
             .iter()
             .flat_map(|&t| {
                 let wi = from_spherical(t.to_radians(), 0.0);
