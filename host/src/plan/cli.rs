@@ -128,6 +128,7 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
         spacing: args.spacing,
         k: args.incoming,
         max_level,
+        bound: true,
     };
     let planner = Planner::new(instrument, estimate.clone())?;
     let t0 = std::time::Instant::now();

@@ -161,6 +161,9 @@ pub struct PlanConfig {
     pub k: usize,
     /// Levels 1..=max_level, N = 2^level.
     pub max_level: usize,
+    /// Compute the motion lower bound (O(n^2) per level; a scan does not need it). Without it the
+    /// levels' `lower_bound_motion_seconds` are NaN.
+    pub bound: bool,
 }
 
 impl Default for PlanConfig {
@@ -171,6 +174,7 @@ impl Default for PlanConfig {
             spacing: Spacing::Angle,
             k: crate::brdf::grid::DEFAULT_K,
             max_level: 4,
+            bound: true,
         }
     }
 }
@@ -390,7 +394,9 @@ impl Planner {
                 .map_err(|(i, reason)| PlanError::Unreachable { index: a + i, reason })?;
             // Bound: entry edge from any earlier pose (or the rest pose) + MST of the new directions.
             let earlier: Vec<&Candidates> = std::iter::once(&rest_c).chain(gen[..a].iter().map(|g| &g.6)).collect();
-            let entry = if items.is_empty() {
+            let entry = if !config.bound {
+                f64::NAN
+            } else if items.is_empty() {
                 0.0
             } else {
                 earlier
@@ -400,7 +406,11 @@ impl Planner {
                     .fold(f64::INFINITY, f64::min)
             };
             let refs: Vec<&Candidates> = items.iter().collect();
-            let bound = entry + order::mst_seconds(&cfg, &refs);
+            let bound = if config.bound {
+                entry + order::mst_seconds(&cfg, &refs)
+            } else {
+                f64::NAN
+            };
             let motion: f64 = moves.iter().sum();
             let raster: f64 = rmoves.iter().sum();
             cum += motion + settle_exposure * items.len() as f64;

@@ -9,7 +9,8 @@
 //!   that reaches a and every pose that reaches b (`Candidates`: both IK branches, every unwinding).
 //!   Any order's move a -> b takes at least d(a, b), whatever branch the firmware picks.
 //! * Order: nearest neighbour from the start pose, then 2-opt and Or-opt (segments of 1-3) over
-//!   neighbour lists (K nearest by d) until no move improves, on the open path (start fixed, end free).
+//!   neighbour lists (K nearest by d, from a bucket grid) until no move improves, on the open path
+//!   (start fixed, end free).
 //! * Lower bound: a path from the start through all n directions is a spanning tree of those n + 1
 //!   points, so its length under d is at least the minimum spanning tree's (Prim, O(n^2)). With
 //!   levels, each level's segment is an entry edge from some earlier pose plus a path through its new
@@ -137,19 +138,100 @@ impl Points<'_> {
         metric(self.cfg, self.pts[a], self.pts[b])
     }
 
+    /// The K nearest points of every point under d, from a bucket grid over the poses' arm and
+    /// tilt angles with cells of `CELL_SECONDS` of travel at each axis's top speed. A point in a
+    /// cell s + 1 cells (Chebyshev) away from every cell of the query's poses is at least
+    /// s * CELL_SECONDS away in time (some axis must travel s cells), so the search stops once the
+    /// K-th best found is within that: exact K nearest, in about O(n K) instead of O(n^2).
     fn neighbours(&self) -> Vec<Vec<usize>> {
         let n = self.pts.len();
-        (0..n)
-            .map(|a| {
-                let mut row: Vec<(f64, usize)> = (0..n).filter(|&b| b != a).map(|b| (self.d(a, b), b)).collect();
-                let k = NEIGHBOURS.min(row.len());
-                if k > 0 && k < row.len() {
-                    row.select_nth_unstable_by(k - 1, |x, y| x.0.total_cmp(&y.0));
+        let axes = [0usize, 1, 2];
+        let h = axes.map(|a| self.cfg.axes[a].max_speed * CELL_SECONDS);
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for c in &self.pts {
+            for p in &c.0 {
+                let v = p.to_array();
+                for a in axes {
+                    lo[a] = lo[a].min(v[a]);
+                    hi[a] = hi[a].max(v[a]);
                 }
-                row.truncate(k);
-                row.into_iter().map(|(_, b)| b).collect()
+            }
+        }
+        let dims = axes.map(|a| (((hi[a] - lo[a]) / h[a]).floor() as usize + 1).max(1));
+        let cell_of = |p: &Pose<f64>| -> [usize; 3] {
+            let v = p.to_array();
+            axes.map(|a| (((v[a] - lo[a]) / h[a]).floor().max(0.0) as usize).min(dims[a] - 1))
+        };
+        let flat = |c: [usize; 3]| (c[0] * dims[1] + c[1]) * dims[2] + c[2];
+        let mut cells: Vec<Vec<usize>> = vec![Vec::new(); dims[0] * dims[1] * dims[2]];
+        for (i, c) in self.pts.iter().enumerate() {
+            for p in &c.0 {
+                let f = flat(cell_of(p));
+                if cells[f].last() != Some(&i) {
+                    cells[f].push(i);
+                }
+            }
+        }
+        let max_shell = *dims.iter().max().unwrap_or(&1);
+        let mut stamp = vec![usize::MAX; n];
+        (0..n)
+            .map(|q| {
+                let k = NEIGHBOURS.min(n - 1);
+                let mut best: Vec<(f64, usize)> = Vec::with_capacity(k + 1);
+                let centres: Vec<[usize; 3]> = self.pts[q].0.iter().map(cell_of).collect();
+                stamp[q] = q;
+                for shell in 0..=max_shell {
+                    for c in &centres {
+                        for_shell(*c, shell, dims, |cell| {
+                            for &j in &cells[flat(cell)] {
+                                if stamp[j] == q {
+                                    continue;
+                                }
+                                stamp[j] = q;
+                                let d = self.d(q, j);
+                                if best.len() < k || d < best[best.len() - 1].0 {
+                                    let at = best.partition_point(|x| x.0 <= d);
+                                    best.insert(at, (d, j));
+                                    best.truncate(k);
+                                }
+                            }
+                        });
+                    }
+                    if best.len() == k && best[k - 1].0 <= shell as f64 * CELL_SECONDS {
+                        break;
+                    }
+                }
+                best.into_iter().map(|(_, j)| j).collect()
             })
             .collect()
+    }
+}
+
+/// Cell size of the neighbour search, in seconds of travel at an axis's top speed.
+const CELL_SECONDS: f64 = 0.25;
+
+/// Call `f` on every cell at Chebyshev distance exactly `s` from `c` inside `dims`.
+fn for_shell(c: [usize; 3], s: usize, dims: [usize; 3], mut f: impl FnMut([usize; 3])) {
+    let range = |a: usize| (c[a].saturating_sub(s), (c[a] + s).min(dims[a] - 1));
+    let (r0, r1, r2) = (range(0), range(1), range(2));
+    for x in r0.0..=r0.1 {
+        for y in r1.0..=r1.1 {
+            let edge_xy = x.abs_diff(c[0]) == s || y.abs_diff(c[1]) == s;
+            if edge_xy {
+                for z in r2.0..=r2.1 {
+                    f([x, y, z]);
+                }
+            } else {
+                // Only the two z faces are at distance s.
+                if c[2] >= s {
+                    f([x, y, c[2] - s]);
+                }
+                if s > 0 && c[2] + s < dims[2] {
+                    f([x, y, c[2] + s]);
+                }
+            }
+        }
     }
 }
 
@@ -163,20 +245,36 @@ pub fn optimise(cfg: &InstrumentConfig<f64>, start: &Candidates, items: &[Candid
     let mut pts = vec![start];
     pts.extend(items.iter());
     let p = Points { cfg, pts };
-    // Nearest neighbour.
+    // Nearest neighbour: the nearest unvisited point among the neighbour list, else (all visited)
+    // the nearest of the remaining points by a full scan.
+    let nb = p.neighbours();
     let mut path = vec![0usize];
     let mut used = vec![false; n + 1];
     used[0] = true;
+    let mut remaining: Vec<usize> = (1..=n).collect();
+    let mut slot: Vec<usize> = (0..=n).map(|i| i.saturating_sub(1)).collect();
     for _ in 0..n {
         let last = path[path.len() - 1];
-        let next = (1..=n)
-            .filter(|&b| !used[b])
-            .min_by(|&x, &y| p.d(last, x).total_cmp(&p.d(last, y)))
+        let next = nb[last]
+            .iter()
+            .copied()
+            .find(|&b| !used[b])
+            .or_else(|| {
+                remaining
+                    .iter()
+                    .copied()
+                    .min_by(|&x, &y| p.d(last, x).total_cmp(&p.d(last, y)))
+            })
             .unwrap_or(0);
         used[next] = true;
+        // O(1) removal from `remaining`, keeping `slot` in step.
+        let at = slot[next];
+        remaining.swap_remove(at);
+        if let Some(&moved) = remaining.get(at) {
+            slot[moved] = at;
+        }
         path.push(next);
     }
-    let nb = p.neighbours();
     local_search(&p, &nb, &mut path);
     path[1..].iter().map(|&i| i - 1).collect()
 }

@@ -352,6 +352,7 @@ pub fn run(
                 spacing: cfg.spacing,
                 k: cfg.k,
                 max_level: cfg.max_level,
+                bound: true,
             };
             let e = evaluate(
                 &mut scorer,
@@ -381,6 +382,7 @@ pub fn run(
                 spacing,
                 k: cfg.k,
                 max_level: cfg.spacing_level.min(cfg.max_level),
+                bound: true,
             };
             let e = evaluate(
                 &mut scorer,
