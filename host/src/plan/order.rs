@@ -139,10 +139,11 @@ impl Points<'_> {
     }
 
     /// The K nearest points of every point under d, from a bucket grid over the poses' arm and
-    /// tilt angles with cells of `CELL_SECONDS` of travel at each axis's top speed. A point in a
-    /// cell s + 1 cells (Chebyshev) away from every cell of the query's poses is at least
-    /// s * CELL_SECONDS away in time (some axis must travel s cells), so the search stops once the
-    /// K-th best found is within that: exact K nearest, in about O(n K) instead of O(n^2).
+    /// tilt angles with cells of `CELL_SECONDS` of travel at each axis's top speed. A point s + 1
+    /// or more cells (Chebyshev) away from every cell of the query's poses needs some axis to travel
+    /// at least s cells, which takes at least that axis's rest-to-rest move time for s cells; the
+    /// search stops once the K-th best found is within that: exact K nearest, in about O(n K)
+    /// instead of O(n^2).
     fn neighbours(&self) -> Vec<Vec<usize>> {
         let n = self.pts.len();
         let axes = [0usize, 1, 2];
@@ -174,6 +175,17 @@ impl Points<'_> {
             }
         }
         let max_shell = *dims.iter().max().unwrap_or(&1);
+        // Least time to points beyond shell s: some axis travels at least s cells, from rest to rest.
+        let shell_bound: Vec<f64> = (0..=max_shell)
+            .map(|s| {
+                axes.iter()
+                    .map(|&a| {
+                        let c = &self.cfg.axes[a];
+                        gonio_shared::motion::move_time(s as f64 * h[a], c.max_speed, c.max_accel)
+                    })
+                    .fold(f64::INFINITY, f64::min)
+            })
+            .collect();
         let mut stamp = vec![usize::MAX; n];
         (0..n)
             .map(|q| {
@@ -198,7 +210,7 @@ impl Points<'_> {
                             }
                         });
                     }
-                    if best.len() == k && best[k - 1].0 <= shell as f64 * CELL_SECONDS {
+                    if best.len() == k && best[k - 1].0 <= shell_bound[shell] {
                         break;
                     }
                 }
@@ -399,4 +411,43 @@ pub fn mst_seconds(cfg: &InstrumentConfig<f64>, items: &[&Candidates]) -> f64 {
         }
     }
     total
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::brdf::frame::from_spherical;
+    use crate::instrument::default_instrument;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// The bucketed neighbour lists are the exact K nearest: same distances as a full scan.
+    #[test]
+    fn bucketed_neighbours_are_exact() {
+        let cfg = default_instrument();
+        let kin = Kinematics::new(cfg).expect("kin");
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut items = Vec::new();
+        while items.len() < 400 {
+            let wi = from_spherical(rng.random::<f64>() * 1.5, 0.0);
+            let wo = from_spherical(rng.random::<f64>() * 1.5, rng.random::<f64>() * TAU);
+            if let Ok(c) = Candidates::of(&kin, wi, wo) {
+                items.push(c);
+            }
+        }
+        let p = Points {
+            cfg: &cfg,
+            pts: items.iter().collect(),
+        };
+        let nb = p.neighbours();
+        for (a, list) in nb.iter().enumerate() {
+            let mut all: Vec<f64> = (0..items.len()).filter(|&b| b != a).map(|b| p.d(a, b)).collect();
+            all.sort_by(f64::total_cmp);
+            let got: Vec<f64> = list.iter().map(|&b| p.d(a, b)).collect();
+            assert_eq!(got.len(), NEIGHBOURS);
+            for (g, w) in got.iter().zip(&all) {
+                assert!((g - w).abs() < 1e-12, "point {a}: {got:?} vs {:?}", &all[..NEIGHBOURS]);
+            }
+        }
+    }
 }
