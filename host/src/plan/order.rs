@@ -193,7 +193,7 @@ impl Points<'_> {
                 let mut best: Vec<(f64, usize)> = Vec::with_capacity(k + 1);
                 let centres: Vec<[usize; 3]> = self.pts[q].0.iter().map(cell_of).collect();
                 stamp[q] = q;
-                for shell in 0..=max_shell {
+                for (shell, &reach) in shell_bound.iter().enumerate() {
                     for c in &centres {
                         for_shell(*c, shell, dims, |cell| {
                             for &j in &cells[flat(cell)] {
@@ -210,7 +210,7 @@ impl Points<'_> {
                             }
                         });
                     }
-                    if best.len() == k && best[k - 1].0 <= shell_bound[shell] {
+                    if best.len() == k && best[k - 1].0 <= reach {
                         break;
                     }
                 }
