@@ -176,9 +176,13 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
     let bytes = super::file::encode_plan(&wire)?;
     let replay = plan.check_encoded(&instrument, &bytes)?;
     let summary = plan.summary();
+    // Everything is computed before the first write, so a failure leaves no output behind.
+    let json = match &args.json {
+        Some(_) => Some(plan_json(&plan, &estimate.model.to_spec(), &rule, replay)?),
+        None => None,
+    };
     super::file::write_plan_file(&args.output, &wire)?;
-    if let Some(path) = &args.json {
-        let json = plan_json(&plan, &estimate.model.to_spec(), &rule, replay)?;
+    if let (Some(path), Some(json)) = (&args.json, json) {
         crate::fsio::write_bytes_atomically(path, json.as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;
     }

@@ -331,7 +331,6 @@ pub fn run(
     dir: &Path,
     progress: &dyn Fn(&str),
 ) -> Result<String, PlanError> {
-    std::fs::create_dir_all(dir).map_err(|e| PlanError::Invalid(format!("{}: {e}", dir.display())))?;
     let mut scorer = Scorer::new(cfg.size)?;
     let mut rows: Vec<Row> = Vec::new();
     let mut spacing_rows: Vec<Row> = Vec::new();
@@ -343,6 +342,7 @@ pub fn run(
         let estimate = estimate_for(spec)?;
         inputs.push((spec.clone(), truth, estimate));
     }
+    std::fs::create_dir_all(dir).map_err(|e| PlanError::Invalid(format!("{}: {e}", dir.display())))?;
     for (spec, truth, estimate) in &inputs {
         let truth_img = scorer.render(parse_material(spec)?);
         let est_img = scorer.render(estimate.material());
