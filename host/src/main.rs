@@ -40,6 +40,10 @@ enum Command {
     /// Generate the project's environment maps (examples/sky.exr).
     #[command(subcommand)]
     Envmap(EnvmapCmd),
+    /// Plan a measurement: ordered, timed, encoded directions for an estimated material.
+    Plan(gonio::plan::cli::PlanArgs),
+    /// Accuracy vs time: strategies, levels, stopping rules, spacings and orders on a set of materials.
+    PlanReport(gonio::plan::cli::PlanReportArgs),
     /// Run the virtual gonio (real firmware, simulated HAL) on a pseudo-terminal; prints its path.
     Sim(measure_cli::SimArgs),
     /// Stream a plan file to a gonio (or the virtual one), journal and collect the measurements.
@@ -91,6 +95,8 @@ fn run(cli: Cli) -> Result<()> {
         Command::Render(args) => gonio::render::cli::run_render(args),
         Command::Compare(args) => gonio::render::cli::run_compare(args),
         Command::Envmap(cmd) => gonio::render::cli::run_envmap(cmd),
+        Command::Plan(args) => gonio::plan::cli::run_plan(args),
+        Command::PlanReport(args) => gonio::plan::cli::run_plan_report(args),
         Command::Sim(args) => measure_cli::run_sim(args),
         Command::Measure(args) => measure_cli::run_measure(args),
         Command::Protocol => {

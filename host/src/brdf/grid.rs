@@ -14,6 +14,11 @@
 //!   they are dropped from the interpolation and the weights of the others renormalised, as is a slice
 //!   that cannot map wo back.
 //! * A warp in the mirror limit (alpha < MIRROR_ALPHA) has no inverse and is refused.
+//! * `NodeLayout::Nested` (the planner's progressive levels): u = (i / N, j / M), i = 0..N-1: the
+//!   pole u.x = 0 is a node, u.x = 1 is not (it lands on the horizon or the warp's rim), and the
+//!   nodes of N x M are nodes of 2N x 2M, so a scan can stop after any level. Beyond the last ring
+//!   u.x > (N - 1) / N the value is held constant. `MeasurementGrid::from_slices` takes any slice
+//!   warps (the mixture warp needs the estimate, so it is not a `WarpKind`).
 
 use super::frame::{from_spherical, phi_of, rotate_z, theta_of};
 use super::roughness::MIRROR_ALPHA;
@@ -22,6 +27,8 @@ use super::{BrdfError, Material};
 use glam::{DVec2, DVec3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+
+const MIRROR_MSG: &str = "a slice warp is in the mirror limit and has no inverse";
 
 /// Default number of incoming elevations.
 pub const DEFAULT_K: usize = 8;
@@ -39,9 +46,19 @@ pub fn incident_thetas(k: usize) -> Vec<f64> {
         .collect()
 }
 
+/// Where the nodes sit in u (see the module doc).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NodeLayout {
+    /// u.x = i / (N - 1): both ends.
+    Endpoints,
+    /// u.x = i / N: nested under doubling, pole included, rim excluded.
+    Nested,
+}
+
 #[derive(Clone, Debug)]
 pub struct MeasurementGrid {
-    warp: WarpKind,
+    warp: Option<WarpKind>,
+    layout: NodeLayout,
     theta_i: Vec<f64>,
     n: usize,
     m: usize,
@@ -85,15 +102,56 @@ impl MeasurementGrid {
             .iter()
             .map(|&t| warp.for_incident(from_spherical(t, 0.0)))
             .collect();
+        let mut grid =
+            Self::from_slices(slices, NodeLayout::Endpoints, theta_i, n, m, values, valid).map_err(|e| match e {
+                BrdfError::Grid(msg) if msg == MIRROR_MSG => bad(format!(
+                    "warp {warp} is in the mirror limit (alpha < {MIRROR_ALPHA}) and has no inverse"
+                )),
+                other => other,
+            })?;
+        grid.warp = Some(warp);
+        Ok(grid)
+    }
+
+    /// A grid over explicit slice warps (one per theta_i) with the given node layout.
+    pub fn from_slices(
+        slices: Vec<SliceWarp>,
+        layout: NodeLayout,
+        theta_i: Vec<f64>,
+        n: usize,
+        m: usize,
+        values: Vec<DVec3>,
+        valid: Vec<bool>,
+    ) -> Result<Self, BrdfError> {
+        let bad = BrdfError::Grid;
+        if n < 2 || m < 1 || theta_i.is_empty() || slices.len() != theta_i.len() {
+            return Err(bad(format!(
+                "grid needs N >= 2, M >= 1 and one warp per theta_i, got N {n}, M {m}, K {}, {} warps",
+                theta_i.len(),
+                slices.len()
+            )));
+        }
+        if !theta_i.windows(2).all(|w| w[0] < w[1])
+            || !theta_i.iter().all(|t| (0.0..=std::f64::consts::FRAC_PI_2).contains(t))
+        {
+            return Err(bad("theta_i must increase strictly within [0, pi/2]".into()));
+        }
+        let cells = theta_i.len() * n * m;
+        if values.len() != cells || valid.len() != cells {
+            return Err(bad(format!(
+                "expected {cells} values and flags, got {} and {}",
+                values.len(),
+                valid.len()
+            )));
+        }
         // A mirror-limit warp sends every u to one direction and has no inverse: nothing to
         // reconstruct through.
         if slices.iter().any(Warp::is_delta) {
-            return Err(bad(format!(
-                "warp {warp} is in the mirror limit (alpha < {MIRROR_ALPHA}) and has no inverse"
-            )));
+            return Err(bad(MIRROR_MSG.into()));
         }
         Ok(Self {
-            warp,
+            warp: None,
+            layout,
             theta_i,
             n,
             m,
@@ -131,7 +189,8 @@ impl MeasurementGrid {
         (k * self.m + j) * self.n + i
     }
 
-    pub fn warp(&self) -> WarpKind {
+    /// The warp kind, if the grid was built from one (not for tabulated warps).
+    pub fn warp(&self) -> Option<WarpKind> {
         self.warp
     }
     pub fn theta_i(&self) -> &[f64] {
@@ -144,7 +203,52 @@ impl MeasurementGrid {
 
     /// The u of node (i, j).
     pub fn node_u(&self, i: usize, j: usize) -> DVec2 {
-        DVec2::new(i as f64 / (self.n - 1) as f64, j as f64 / self.m as f64)
+        let x = match self.layout {
+            NodeLayout::Endpoints => i as f64 / (self.n - 1) as f64,
+            NodeLayout::Nested => i as f64 / self.n as f64,
+        };
+        DVec2::new(x, j as f64 / self.m as f64)
+    }
+
+    /// Set node (k, i, j) (a measurement arriving); out-of-range indices are ignored.
+    pub fn set_node(&mut self, k: usize, i: usize, j: usize, value: Option<DVec3>) {
+        if k < self.theta_i.len() && i < self.n && j < self.m {
+            let idx = self.index(k, i, j);
+            self.values[idx] = value.unwrap_or(DVec3::ZERO);
+            self.valid[idx] = value.is_some();
+        }
+    }
+
+    /// Give every node without a measurement the value of the nearest measured node of its slice
+    /// (distance in node steps, periodic in j). Filling beat dropping such nodes in the prototype:
+    /// a dropped node leaves the cells around it to extrapolation from one side, or to black.
+    pub fn fill_from_nearest(&mut self) {
+        for k in 0..self.theta_i.len() {
+            let measured: Vec<(usize, usize)> = (0..self.m)
+                .flat_map(|j| (0..self.n).map(move |i| (i, j)))
+                .filter(|&(i, j)| self.valid[self.index(k, i, j)])
+                .collect();
+            if measured.is_empty() {
+                continue;
+            }
+            for j in 0..self.m {
+                for i in 0..self.n {
+                    let idx = self.index(k, i, j);
+                    if self.valid[idx] {
+                        continue;
+                    }
+                    let dist = |&(a, b): &(usize, usize)| {
+                        let dj = a.abs_diff(i).pow(2);
+                        let dy = b.abs_diff(j).min(self.m - b.abs_diff(j)).pow(2);
+                        dj + dy
+                    };
+                    if let Some(&(a, b)) = measured.iter().min_by_key(|p| dist(p)) {
+                        self.values[idx] = self.values[self.index(k, a, b)];
+                        self.valid[idx] = true;
+                    }
+                }
+            }
+        }
     }
 
     /// The (wi, wo) pair node (k, i, j) measures, `None` if its direction is below the horizon.
@@ -167,7 +271,11 @@ impl MeasurementGrid {
 
     /// Bilinear in u within slice k, over the valid nodes only; `None` if none of the four is valid.
     fn bilinear(&self, k: usize, u: DVec2) -> Option<DVec3> {
-        let x = u.x.clamp(0.0, 1.0) * (self.n - 1) as f64;
+        let x = match self.layout {
+            NodeLayout::Endpoints => u.x.clamp(0.0, 1.0) * (self.n - 1) as f64,
+            // Held constant beyond the last ring (u.x > (N - 1) / N).
+            NodeLayout::Nested => (u.x.clamp(0.0, 1.0) * self.n as f64).min((self.n - 1) as f64),
+        };
         let i0 = (x.floor() as usize).min(self.n - 2);
         let fx = x - i0 as f64;
         let y = u.y.rem_euclid(1.0) * self.m as f64;

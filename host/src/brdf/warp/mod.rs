@@ -10,10 +10,14 @@
 
 mod cosine;
 mod ggx;
+mod tabulated;
 mod ward;
 
 pub use cosine::CosineHemisphere;
 pub use ggx::{GgxNdf, GgxVndf};
+pub use tabulated::{
+    Marginal2D, MixtureWarp, UniformAngles, MIXTURE_BASE_ALPHA_MIN, MIXTURE_SPECULAR_WEIGHT, MIXTURE_UNIFORM_WEIGHT,
+};
 pub use ward::{ward_half_vector_pdf, WardHalfVector};
 
 use super::frame::{half_vector, reflect, MIN_HALF_LENGTH};
@@ -21,6 +25,7 @@ use super::roughness::Roughness;
 use super::BrdfError;
 use glam::{DVec2, DVec3};
 use std::fmt;
+use std::sync::Arc;
 
 /// A warp for one fixed incoming direction.
 pub trait Warp {
@@ -98,6 +103,8 @@ pub enum WarpKind {
     GgxVndf {
         alpha: f64,
     },
+    /// Equal steps in (theta_o, phi_o), independent of wi: the planner's uniform baseline.
+    Uniform,
 }
 
 impl WarpKind {
@@ -108,6 +115,7 @@ impl WarpKind {
             WarpKind::Ward { alpha } => SliceWarp::Ward(WardHalfVector::new(wi, alpha)),
             WarpKind::GgxNdf { alpha } => SliceWarp::GgxNdf(GgxNdf::new(wi, alpha)),
             WarpKind::GgxVndf { alpha } => SliceWarp::GgxVndf(GgxVndf::new(wi, alpha)),
+            WarpKind::Uniform => SliceWarp::Uniform(UniformAngles),
         }
     }
 
@@ -128,12 +136,13 @@ impl WarpKind {
         };
         match kind.trim() {
             "cosine" if rest.is_empty() => Ok(WarpKind::Cosine),
+            "uniform" if rest.is_empty() => Ok(WarpKind::Uniform),
             "ward" => Ok(WarpKind::Ward { alpha: alpha()? }),
             "ggx-ndf" => Ok(WarpKind::GgxNdf { alpha: alpha()? }),
             "ggx-vndf" => Ok(WarpKind::GgxVndf { alpha: alpha()? }),
             _ => Err(BrdfError::spec(
                 spec,
-                "unknown warp (cosine, ward:alpha=A, ggx-ndf:alpha=A, ggx-vndf:alpha=A)",
+                "unknown warp (cosine, uniform, ward:alpha=A, ggx-ndf:alpha=A, ggx-vndf:alpha=A)",
             )),
         }
     }
@@ -146,6 +155,7 @@ impl fmt::Display for WarpKind {
             WarpKind::Ward { alpha } => write!(f, "ward:alpha={alpha}"),
             WarpKind::GgxNdf { alpha } => write!(f, "ggx-ndf:alpha={alpha}"),
             WarpKind::GgxVndf { alpha } => write!(f, "ggx-vndf:alpha={alpha}"),
+            WarpKind::Uniform => write!(f, "uniform"),
         }
     }
 }
@@ -157,6 +167,9 @@ pub enum SliceWarp {
     Ward(WardHalfVector),
     GgxNdf(GgxNdf),
     GgxVndf(GgxVndf),
+    Uniform(UniformAngles),
+    /// Shared: a mixture's table is built once per slice and cloned with the grid.
+    Mixture(Arc<MixtureWarp>),
 }
 
 impl Warp for SliceWarp {
@@ -166,6 +179,8 @@ impl Warp for SliceWarp {
             SliceWarp::Ward(w) => w.sample(u),
             SliceWarp::GgxNdf(w) => w.sample(u),
             SliceWarp::GgxVndf(w) => w.sample(u),
+            SliceWarp::Uniform(w) => w.sample(u),
+            SliceWarp::Mixture(w) => w.sample(u),
         }
     }
     fn invert(&self, wo: DVec3) -> Option<DVec2> {
@@ -174,6 +189,8 @@ impl Warp for SliceWarp {
             SliceWarp::Ward(w) => w.invert(wo),
             SliceWarp::GgxNdf(w) => w.invert(wo),
             SliceWarp::GgxVndf(w) => w.invert(wo),
+            SliceWarp::Uniform(w) => w.invert(wo),
+            SliceWarp::Mixture(w) => w.invert(wo),
         }
     }
     fn pdf(&self, wo: DVec3) -> f64 {
@@ -182,6 +199,8 @@ impl Warp for SliceWarp {
             SliceWarp::Ward(w) => w.pdf(wo),
             SliceWarp::GgxNdf(w) => w.pdf(wo),
             SliceWarp::GgxVndf(w) => w.pdf(wo),
+            SliceWarp::Uniform(w) => w.pdf(wo),
+            SliceWarp::Mixture(w) => w.pdf(wo),
         }
     }
     fn is_delta(&self) -> bool {
@@ -190,6 +209,8 @@ impl Warp for SliceWarp {
             SliceWarp::Ward(w) => w.is_delta(),
             SliceWarp::GgxNdf(w) => w.is_delta(),
             SliceWarp::GgxVndf(w) => w.is_delta(),
+            SliceWarp::Uniform(w) => w.is_delta(),
+            SliceWarp::Mixture(w) => w.is_delta(),
         }
     }
 }

@@ -191,7 +191,7 @@ fn invalid_probability(warp: &SliceWarp) -> f64 {
 fn chi_square_and_normalisation() {
     let cases = suite();
     let narrow = |kind: WarpKind| match kind {
-        WarpKind::Cosine => None,
+        WarpKind::Cosine | WarpKind::Uniform => None,
         WarpKind::Ward { alpha } | WarpKind::GgxNdf { alpha } | WarpKind::GgxVndf { alpha } => {
             (alpha <= 0.05).then_some(8.0 * alpha)
         }

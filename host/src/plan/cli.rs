@@ -1,0 +1,298 @@
+//! `gonio plan` and `gonio plan-report`: argument handling and output files. Every output is
+//! written atomically and only after the plan has passed its re-simulation check.
+
+use super::report::{self, ReportConfig, Scorer};
+use super::{estimate_for, Plan, PlanConfig, PlanError, Planner, Spacing, Strategy, MAX_LEVEL};
+use anyhow::{bail, Context, Result};
+use gonio_shared::instrument::AXES;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+#[command(group = clap::ArgGroup::new("size").args(["grid", "target_psnr", "target_flip", "time_budget"]))]
+pub struct PlanArgs {
+    /// The estimated material as an analytic spec (e.g. "ggx:alpha=0.1,diffuse=0.2"); other specs
+    /// (nbrdf:, merl:, rgl:) are fitted with GGX first.
+    #[arg(long = "material-model", value_name = "SPEC", required = true)]
+    pub material_model: String,
+    /// Instrument file (default: the shipped examples/gonio.toml).
+    #[arg(long)]
+    pub instrument: Option<PathBuf>,
+    /// Outgoing grid N (N x N per incoming elevation; a power of two, 2..=64). Default 16.
+    #[arg(long)]
+    pub grid: Option<usize>,
+    /// Smallest level whose render PSNR (dB), simulated on the estimate, reaches this (predictive rule).
+    #[arg(long)]
+    pub target_psnr: Option<f64>,
+    /// Smallest level whose mean FLIP, simulated on the estimate, is at most this (predictive rule).
+    #[arg(long)]
+    pub target_flip: Option<f64>,
+    /// Deepest level whose whole plan fits this time: 90, 90s, 15m, 2h, 1h30m.
+    #[arg(long, value_parser = parse_duration)]
+    pub time_budget: Option<f64>,
+    /// Deepest level the target and budget modes consider (a power of two).
+    #[arg(long, default_value_t = 16)]
+    pub max_grid: usize,
+    #[arg(long, value_enum, default_value_t = Strategy::Mixture)]
+    pub strategy: Strategy,
+    #[arg(long, value_enum, default_value_t = Spacing::Angle)]
+    pub spacing: Spacing,
+    /// Number of incoming elevations.
+    #[arg(long, default_value_t = 8)]
+    pub incoming: usize,
+    /// Plan file (postcard wire frames, what the firmware consumes).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Readable copy with per-direction axis targets and times.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+pub struct PlanReportArgs {
+    /// Material specs (repeatable); default: four MERL fits and two analytic lobes.
+    #[arg(long = "material")]
+    pub materials: Vec<String>,
+    #[arg(long)]
+    pub instrument: Option<PathBuf>,
+    /// Finest grid (power of two). 16 takes minutes on 2 cores; 32 costs ~4x the planning per level.
+    #[arg(long, default_value_t = 16)]
+    pub max_grid: usize,
+    #[arg(long, default_value_t = 8)]
+    pub incoming: usize,
+    /// Render side in pixels.
+    #[arg(long, default_value_t = 128)]
+    pub size: usize,
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+/// Seconds from "90", "90s", "15m", "2h", "1h30m", "1.5h".
+pub fn parse_duration(s: &str) -> Result<f64, String> {
+    let bad = || format!("'{s}' is not a duration (e.g. 90s, 15m, 2h, 1h30m)");
+    let mut total = 0.0;
+    let mut num = String::new();
+    let mut any = false;
+    for c in s.trim().chars() {
+        if c.is_ascii_digit() || c == '.' {
+            num.push(c);
+            continue;
+        }
+        let unit = match c {
+            's' => 1.0,
+            'm' => 60.0,
+            'h' => 3600.0,
+            _ => return Err(bad()),
+        };
+        total += num.parse::<f64>().map_err(|_| bad())? * unit;
+        num.clear();
+        any = true;
+    }
+    if !num.is_empty() {
+        total += num.parse::<f64>().map_err(|_| bad())?;
+        any = true;
+    }
+    if !any || !total.is_finite() || total <= 0.0 {
+        return Err(bad());
+    }
+    Ok(total)
+}
+
+fn level_of(n: usize, what: &str) -> Result<usize> {
+    if n < 2 || !n.is_power_of_two() || n.trailing_zeros() as usize > MAX_LEVEL {
+        bail!("{what} {n} must be a power of two from 2 to {}", 1usize << MAX_LEVEL);
+    }
+    Ok(n.trailing_zeros() as usize)
+}
+
+pub fn run_plan(args: PlanArgs) -> Result<()> {
+    let instrument = crate::instrument::load_or_default(args.instrument.as_deref())?;
+    let estimate = estimate_for(&args.material_model).context("--material-model")?;
+    let targeted = args.target_psnr.is_some() || args.target_flip.is_some() || args.time_budget.is_some();
+    let max_level = if targeted {
+        level_of(args.max_grid, "--max-grid")?
+    } else {
+        level_of(args.grid.unwrap_or(16), "--grid")?
+    };
+    if let Some(t) = args.target_flip {
+        if !(t > 0.0 && t < 1.0) {
+            bail!("--target-flip {t} must be in (0, 1)");
+        }
+    }
+    if let Some(t) = args.target_psnr {
+        if !t.is_finite() {
+            bail!("--target-psnr must be finite");
+        }
+    }
+    let config = PlanConfig {
+        strategy: args.strategy,
+        spacing: args.spacing,
+        k: args.incoming,
+        max_level,
+        bound: true,
+    };
+    let planner = Planner::new(instrument, estimate.clone())?;
+    let t0 = std::time::Instant::now();
+    let plan = planner.plan(&config)?;
+    let (level, rule) = if let Some(budget) = args.time_budget {
+        let l = plan.level_within_budget(budget).with_context(|| {
+            format!(
+                "--time-budget {budget:.0} s: even the first level needs {:.0} s",
+                plan.levels[0].cumulative_seconds
+            )
+        })?;
+        (l, format!("time budget {budget:.0} s"))
+    } else if args.target_psnr.is_some() || args.target_flip.is_some() {
+        let mut scorer = Scorer::new(128)?;
+        let est = estimate.material();
+        let reference = scorer.render(estimate.material());
+        let values = plan.measure(est.as_ref());
+        let mut chosen = None;
+        for l in &plan.levels {
+            let img = scorer.render(Box::new(plan.reconstruct(l.level, &values)?));
+            let c = report::score(&reference, &img)?;
+            let ok_psnr = args.target_psnr.is_none_or(|t| c.psnr >= t);
+            let ok_flip = args.target_flip.is_none_or(|t| c.flip <= t);
+            if ok_psnr && ok_flip {
+                chosen = Some(l.level);
+                break;
+            }
+        }
+        match chosen {
+            Some(l) => (l, "predictive (simulated on the estimate)".to_string()),
+            None => {
+                eprintln!(
+                    "warning: no level up to --max-grid {} meets the target; using the deepest",
+                    args.max_grid
+                );
+                (max_level, "predictive: target not met, deepest level".to_string())
+            }
+        }
+    } else {
+        (max_level, "grid".to_string())
+    };
+    let plan = plan.truncate(level);
+    let plan_seconds = t0.elapsed().as_secs_f64();
+    let wire = plan.wire();
+    let bytes = super::file::encode_plan(&wire)?;
+    let replay = plan.check_encoded(&instrument, &bytes)?;
+    let summary = plan.summary();
+    // Everything is computed before the first write, so a failure leaves no output behind.
+    let json = match &args.json {
+        Some(_) => Some(plan_json(&plan, &estimate.model.to_spec(), &rule, replay)?),
+        None => None,
+    };
+    super::file::write_plan_file(&args.output, &wire)?;
+    if let (Some(path), Some(json)) = (&args.json, json) {
+        crate::fsio::write_bytes_atomically(path, json.as_bytes())
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    let l = plan.levels.last().context("empty plan")?;
+    println!(
+        "{} directions ({}x{} x {} incoming, {} strategy, {} spacing; {rule}); dropped: {} below horizon, {} blocked, {} limits",
+        wire.len(),
+        l.n,
+        l.m,
+        plan.thetas.len(),
+        config.strategy,
+        config.spacing,
+        plan.dropped.below_horizon,
+        plan.dropped.blocked,
+        plan.dropped.limit
+    );
+    println!(
+        "time {:.1} min (motion {:.1} min); raster order {:.1} min (motion {:.1}); motion lower bound {:.1} min; raster/optimised motion {:.2}x, optimised/bound {:.3}x; planned in {:.2} s",
+        summary.total_seconds / 60.0,
+        summary.motion_seconds / 60.0,
+        summary.raster_total_seconds / 60.0,
+        summary.raster_motion_seconds / 60.0,
+        summary.lower_bound_motion_seconds / 60.0,
+        summary.raster_motion_seconds / summary.motion_seconds,
+        summary.motion_seconds / summary.lower_bound_motion_seconds,
+        plan_seconds
+    );
+    Ok(())
+}
+
+fn plan_json(plan: &Plan, estimate: &str, rule: &str, replay_motion: f64) -> Result<String, PlanError> {
+    let s = plan.summary();
+    let directions: Vec<serde_json::Value> = plan
+        .directions
+        .iter()
+        .map(|d| {
+            let w = d.wire();
+            let axes: serde_json::Map<String, serde_json::Value> = AXES
+                .iter()
+                .map(|a| (format!("{}_deg", a.name()), d.pose.get(*a).to_degrees().into()))
+                .collect();
+            serde_json::json!({
+                "level": d.level,
+                "theta_i_deg": (w.theta_i as f64).to_degrees(),
+                "phi_i_deg": (w.phi_i as f64).to_degrees(),
+                "theta_o_deg": (w.theta_o as f64).to_degrees(),
+                "phi_o_deg": (w.phi_o as f64).to_degrees(),
+                "axes": axes,
+                "move_seconds": d.move_seconds,
+                "seconds": d.seconds,
+            })
+        })
+        .collect();
+    let v = serde_json::json!({
+        "estimate": estimate,
+        "strategy": plan.config.strategy.to_string(),
+        "spacing": plan.config.spacing.to_string(),
+        "incoming_theta_deg": plan.thetas.iter().map(|t| t.to_degrees()).collect::<Vec<_>>(),
+        "rule": rule,
+        "levels": plan.levels,
+        "dropped": plan.dropped,
+        "total_seconds": s.total_seconds,
+        "motion_seconds": s.motion_seconds,
+        "raster_total_seconds": s.raster_total_seconds,
+        "raster_motion_seconds": s.raster_motion_seconds,
+        "lower_bound_motion_seconds": s.lower_bound_motion_seconds,
+        "replayed_motion_seconds_f32": replay_motion,
+        "directions": directions,
+    });
+    serde_json::to_string_pretty(&v).map_err(|e| PlanError::Invalid(e.to_string()))
+}
+
+pub fn run_plan_report(args: PlanReportArgs) -> Result<()> {
+    let instrument = crate::instrument::load_or_default(args.instrument.as_deref())?;
+    let max_level = level_of(args.max_grid, "--max-grid")?;
+    if !(16..=1024).contains(&args.size) {
+        bail!("--size {} must be in 16..=1024", args.size);
+    }
+    let mut cfg = ReportConfig {
+        max_level,
+        k: args.incoming,
+        size: args.size,
+        ..ReportConfig::default()
+    };
+    if !args.materials.is_empty() {
+        cfg.materials = args.materials;
+    }
+    let bar = indicatif::ProgressBar::new((cfg.materials.len() * 4) as u64);
+    let md = report::run(&cfg, &instrument, &args.output, &|line| {
+        bar.println(line);
+        bar.inc(1);
+    })?;
+    bar.finish_and_clear();
+    print!("{md}");
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_duration;
+
+    #[test]
+    fn durations() {
+        assert_eq!(parse_duration("90"), Ok(90.0));
+        assert_eq!(parse_duration("90s"), Ok(90.0));
+        assert_eq!(parse_duration("15m"), Ok(900.0));
+        assert_eq!(parse_duration("1h30m"), Ok(5400.0));
+        assert!(parse_duration("").is_err());
+        assert!(parse_duration("5x").is_err());
+        assert!(parse_duration("0s").is_err());
+        assert!(parse_duration("m").is_err());
+    }
+}

@@ -1,0 +1,453 @@
+//! The time model and the ordering of directions.
+//!
+//! * Cost of a direction = the synchronised move from the previous pose (`gonio_shared::motion`) +
+//!   settle + exposure (from the instrument file). Settle and exposure are the same for every order;
+//!   only the motion differs.
+//! * The pose of a direction is what the firmware's inverse kinematics picks: the branch nearest
+//!   the current pose. `simulate` replays an order exactly so (this is the plan's time).
+//! * Metric for ordering and bounds: d(a, b) = the smallest synchronised move time over every pose
+//!   that reaches a and every pose that reaches b (`Candidates`: both IK branches, every unwinding).
+//!   Any order's move a -> b takes at least d(a, b), whatever branch the firmware picks.
+//! * Order: nearest neighbour from the start pose, then 2-opt and Or-opt (segments of 1-3) over
+//!   neighbour lists (K nearest by d, from a bucket grid) until no move improves, on the open path
+//!   (start fixed, end free).
+//! * Lower bound: a path from the start through all n directions is a spanning tree of those n + 1
+//!   points, so its length under d is at least the minimum spanning tree's (Prim, O(n^2)). With
+//!   levels, each level's segment is an entry edge from some earlier pose plus a path through its new
+//!   directions: bound = sum over levels of (min entry edge + MST of the level's new directions).
+
+use glam::DVec3;
+use gonio_shared::instrument::{InstrumentConfig, AXES};
+use gonio_shared::kinematics::{Kinematics, Pose, Unreachable};
+use gonio_shared::motion::sync_move_time;
+use gonio_shared::vec3::Vec3;
+use std::f64::consts::TAU;
+
+/// How many nearest neighbours the local search looks at.
+const NEIGHBOURS: usize = 10;
+/// An improvement must beat this (seconds) to count, so rounding cannot cycle the search.
+const MIN_GAIN: f64 = 1e-9;
+
+fn v3(w: DVec3) -> Vec3<f64> {
+    Vec3::new(w.x, w.y, w.z)
+}
+
+/// Move time between two poses, with a continuous (unwinding) axis taking the short way as the IK does.
+pub fn move_seconds(cfg: &InstrumentConfig<f64>, from: &Pose<f64>, to: &Pose<f64>) -> f64 {
+    let a = from.to_array();
+    let mut b = to.to_array();
+    for axis in AXES {
+        if cfg.axis(axis).continuous {
+            let i = axis.index();
+            b[i] = a[i] + gonio_shared::real::wrap_pi(b[i] - a[i]);
+        }
+    }
+    sync_move_time(cfg, &a, &b)
+}
+
+/// Every pose that reaches (wi, wo) on this instrument.
+#[derive(Clone, Debug)]
+pub struct Candidates(pub Vec<Pose<f64>>);
+
+impl Candidates {
+    /// All IK solutions: the two plane-normal signs times the detector's unwindings, found by
+    /// asking the shared IK from a probe pose near each (it returns the valid solution nearest the
+    /// probe, so every returned pose is one the firmware could pick).
+    pub fn of(kin: &Kinematics<f64>, wi: DVec3, wo: DVec3) -> Result<Self, Unreachable> {
+        let rest = kin.rest_pose();
+        let first = kin.inverse(v3(wi), v3(wo), &rest)?;
+        // The other branch: the plane normal flipped negates tilt and both arm angles (and the arms'
+        // separation becomes 2 pi - separation).
+        let sep = first.light - first.detector;
+        let mut probes = Vec::new();
+        for (tilt, det, sep) in [
+            (first.tilt, first.detector, sep),
+            (-first.tilt, -first.detector, TAU - sep),
+        ] {
+            for k in [-1.0, 0.0, 1.0] {
+                let detector = det + k * TAU;
+                probes.push(Pose {
+                    light: detector + sep,
+                    detector,
+                    tilt,
+                    azimuth: first.azimuth,
+                });
+            }
+        }
+        let mut out: Vec<Pose<f64>> = vec![first];
+        for p in probes {
+            if let Ok(q) = kin.inverse(v3(wi), v3(wo), &p) {
+                let same = |a: &Pose<f64>| {
+                    a.to_array()
+                        .iter()
+                        .zip(q.to_array().iter())
+                        .all(|(x, y)| (x - y).abs() < 1e-9)
+                };
+                if !out.iter().any(same) {
+                    out.push(q);
+                }
+            }
+        }
+        Ok(Self(out))
+    }
+}
+
+/// d(a, b): the least move time between any pose of a and any pose of b.
+pub fn metric(cfg: &InstrumentConfig<f64>, a: &Candidates, b: &Candidates) -> f64 {
+    let mut best = f64::INFINITY;
+    for p in &a.0 {
+        for q in &b.0 {
+            best = best.min(move_seconds(cfg, p, q));
+        }
+    }
+    best
+}
+
+/// Poses and move times of a replay.
+pub type Replay = (Vec<Pose<f64>>, Vec<f64>);
+
+/// The poses and move times the firmware would produce for `order`, starting at `start`; on
+/// failure, the index of the first unreachable direction and why.
+pub fn simulate(
+    kin: &Kinematics<f64>,
+    start: Pose<f64>,
+    pairs: &[(DVec3, DVec3)],
+) -> Result<Replay, (usize, Unreachable)> {
+    let cfg = kin.config();
+    let mut current = start;
+    let mut poses = Vec::with_capacity(pairs.len());
+    let mut moves = Vec::with_capacity(pairs.len());
+    for (idx, &(wi, wo)) in pairs.iter().enumerate() {
+        let p = kin.inverse(v3(wi), v3(wo), &current).map_err(|e| (idx, e))?;
+        kin.check_pose(&p).map_err(|e| (idx, e))?;
+        moves.push(move_seconds(cfg, &current, &p));
+        poses.push(p);
+        current = p;
+    }
+    Ok((poses, moves))
+}
+
+/// Points for ordering: index 0 is the fixed start, 1..=n the directions.
+struct Points<'a> {
+    cfg: &'a InstrumentConfig<f64>,
+    pts: Vec<&'a Candidates>,
+}
+
+impl Points<'_> {
+    fn d(&self, a: usize, b: usize) -> f64 {
+        metric(self.cfg, self.pts[a], self.pts[b])
+    }
+
+    /// The K nearest points of every point under d, from a bucket grid over the poses' arm and
+    /// tilt angles with cells of `CELL_SECONDS` of travel at each axis's top speed. A point s + 1
+    /// or more cells (Chebyshev) away from every cell of the query's poses needs some axis to travel
+    /// at least s cells, which takes at least that axis's rest-to-rest move time for s cells; the
+    /// search stops once the K-th best found is within that: exact K nearest, in about O(n K)
+    /// instead of O(n^2).
+    fn neighbours(&self) -> Vec<Vec<usize>> {
+        let n = self.pts.len();
+        let axes = [0usize, 1, 2];
+        let h = axes.map(|a| self.cfg.axes[a].max_speed * CELL_SECONDS);
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for c in &self.pts {
+            for p in &c.0 {
+                let v = p.to_array();
+                for a in axes {
+                    lo[a] = lo[a].min(v[a]);
+                    hi[a] = hi[a].max(v[a]);
+                }
+            }
+        }
+        let dims = axes.map(|a| (((hi[a] - lo[a]) / h[a]).floor() as usize + 1).max(1));
+        let cell_of = |p: &Pose<f64>| -> [usize; 3] {
+            let v = p.to_array();
+            axes.map(|a| (((v[a] - lo[a]) / h[a]).floor().max(0.0) as usize).min(dims[a] - 1))
+        };
+        let flat = |c: [usize; 3]| (c[0] * dims[1] + c[1]) * dims[2] + c[2];
+        let mut cells: Vec<Vec<usize>> = vec![Vec::new(); dims[0] * dims[1] * dims[2]];
+        for (i, c) in self.pts.iter().enumerate() {
+            for p in &c.0 {
+                let f = flat(cell_of(p));
+                if cells[f].last() != Some(&i) {
+                    cells[f].push(i);
+                }
+            }
+        }
+        let max_shell = *dims.iter().max().unwrap_or(&1);
+        // Least time to points beyond shell s: some axis travels at least s cells, from rest to rest.
+        let shell_bound: Vec<f64> = (0..=max_shell)
+            .map(|s| {
+                axes.iter()
+                    .map(|&a| {
+                        let c = &self.cfg.axes[a];
+                        gonio_shared::motion::move_time(s as f64 * h[a], c.max_speed, c.max_accel)
+                    })
+                    .fold(f64::INFINITY, f64::min)
+            })
+            .collect();
+        let mut stamp = vec![usize::MAX; n];
+        (0..n)
+            .map(|q| {
+                let k = NEIGHBOURS.min(n - 1);
+                let mut best: Vec<(f64, usize)> = Vec::with_capacity(k + 1);
+                let centres: Vec<[usize; 3]> = self.pts[q].0.iter().map(cell_of).collect();
+                stamp[q] = q;
+                for (shell, &reach) in shell_bound.iter().enumerate() {
+                    for c in &centres {
+                        for_shell(*c, shell, dims, |cell| {
+                            for &j in &cells[flat(cell)] {
+                                if stamp[j] == q {
+                                    continue;
+                                }
+                                stamp[j] = q;
+                                let d = self.d(q, j);
+                                if best.len() < k || d < best[best.len() - 1].0 {
+                                    let at = best.partition_point(|x| x.0 <= d);
+                                    best.insert(at, (d, j));
+                                    best.truncate(k);
+                                }
+                            }
+                        });
+                    }
+                    if best.len() == k && best[k - 1].0 <= reach {
+                        break;
+                    }
+                }
+                best.into_iter().map(|(_, j)| j).collect()
+            })
+            .collect()
+    }
+}
+
+/// Cell size of the neighbour search, in seconds of travel at an axis's top speed.
+const CELL_SECONDS: f64 = 0.25;
+
+/// Call `f` on every cell at Chebyshev distance exactly `s` from `c` inside `dims`.
+fn for_shell(c: [usize; 3], s: usize, dims: [usize; 3], mut f: impl FnMut([usize; 3])) {
+    let range = |a: usize| (c[a].saturating_sub(s), (c[a] + s).min(dims[a] - 1));
+    let (r0, r1, r2) = (range(0), range(1), range(2));
+    for x in r0.0..=r0.1 {
+        for y in r1.0..=r1.1 {
+            let edge_xy = x.abs_diff(c[0]) == s || y.abs_diff(c[1]) == s;
+            if edge_xy {
+                for z in r2.0..=r2.1 {
+                    f([x, y, z]);
+                }
+            } else {
+                // Only the two z faces are at distance s.
+                if c[2] >= s {
+                    f([x, y, c[2] - s]);
+                }
+                if s > 0 && c[2] + s < dims[2] {
+                    f([x, y, c[2] + s]);
+                }
+            }
+        }
+    }
+}
+
+/// Order `items` (candidate sets of the directions) starting from the pose set `start`: returns a
+/// permutation of 0..items.len().
+pub fn optimise(cfg: &InstrumentConfig<f64>, start: &Candidates, items: &[Candidates]) -> Vec<usize> {
+    let n = items.len();
+    if n <= 1 {
+        return (0..n).collect();
+    }
+    let mut pts = vec![start];
+    pts.extend(items.iter());
+    let p = Points { cfg, pts };
+    // Nearest neighbour: the nearest unvisited point among the neighbour list, else (all visited)
+    // the nearest of the remaining points by a full scan.
+    let nb = p.neighbours();
+    let mut path = vec![0usize];
+    let mut used = vec![false; n + 1];
+    used[0] = true;
+    let mut remaining: Vec<usize> = (1..=n).collect();
+    let mut slot: Vec<usize> = (0..=n).map(|i| i.saturating_sub(1)).collect();
+    for _ in 0..n {
+        let last = path[path.len() - 1];
+        let next = nb[last]
+            .iter()
+            .copied()
+            .find(|&b| !used[b])
+            .or_else(|| {
+                remaining
+                    .iter()
+                    .copied()
+                    .min_by(|&x, &y| p.d(last, x).total_cmp(&p.d(last, y)))
+            })
+            .unwrap_or(0);
+        used[next] = true;
+        // O(1) removal from `remaining`, keeping `slot` in step.
+        let at = slot[next];
+        remaining.swap_remove(at);
+        if let Some(&moved) = remaining.get(at) {
+            slot[moved] = at;
+        }
+        path.push(next);
+    }
+    local_search(&p, &nb, &mut path);
+    path[1..].iter().map(|&i| i - 1).collect()
+}
+
+fn edge(p: &Points, path: &[usize], a: usize) -> f64 {
+    if a + 1 < path.len() {
+        p.d(path[a], path[a + 1])
+    } else {
+        0.0
+    }
+}
+
+fn local_search(p: &Points, nb: &[Vec<usize>], path: &mut Vec<usize>) {
+    let len = path.len();
+    let mut pos = vec![0usize; len];
+    let reindex = |path: &[usize], pos: &mut [usize]| {
+        for (i, &c) in path.iter().enumerate() {
+            pos[c] = i;
+        }
+    };
+    reindex(path, &mut pos);
+    for _round in 0..50 {
+        let mut improved = false;
+        // 2-opt: reverse path[a+1..=b] so that path[a] meets path[b].
+        for a in 0..len - 1 {
+            for &c in &nb[path[a]] {
+                let b = pos[c];
+                if b <= a + 1 {
+                    continue;
+                }
+                let old = edge(p, path, a) + edge(p, path, b);
+                let new = p.d(path[a], path[b])
+                    + if b + 1 < len {
+                        p.d(path[a + 1], path[b + 1])
+                    } else {
+                        0.0
+                    };
+                if old - new > MIN_GAIN {
+                    path[a + 1..=b].reverse();
+                    reindex(path, &mut pos);
+                    improved = true;
+                    break;
+                }
+            }
+        }
+        // Or-opt: move a segment of 1-3 (maybe reversed) next to a neighbour of its first node.
+        for s in 1..=3usize {
+            let mut i = 1;
+            while i + s <= len {
+                let seg: Vec<usize> = path[i..i + s].to_vec();
+                let (first, last) = (seg[0], seg[s - 1]);
+                let prev = path[i - 1];
+                let next = path.get(i + s).copied();
+                let removed_gain =
+                    p.d(prev, first) + next.map_or(0.0, |x| p.d(last, x)) - next.map_or(0.0, |x| p.d(prev, x));
+                let mut best: Option<(f64, usize, bool)> = None;
+                for &c in &nb[first] {
+                    let j = pos[c];
+                    if (i..i + s).contains(&j) || j + 1 == i {
+                        continue;
+                    }
+                    // Insert between path[j] and path[j + 1] (or at the end).
+                    let after = path.get(j + 1).copied().filter(|&x| x != first);
+                    for reversed in [false, true] {
+                        let (h, t) = if reversed { (last, first) } else { (first, last) };
+                        let add = p.d(c, h) + after.map_or(0.0, |x| p.d(t, x)) - after.map_or(0.0, |x| p.d(c, x));
+                        let gain = removed_gain - add;
+                        if gain > MIN_GAIN && best.is_none_or(|(g, _, _)| gain > g) {
+                            best = Some((gain, j, reversed));
+                        }
+                    }
+                }
+                if let Some((_, j, reversed)) = best {
+                    let target = path[j];
+                    let mut seg = seg;
+                    if reversed {
+                        seg.reverse();
+                    }
+                    path.drain(i..i + s);
+                    let at = path.iter().position(|&x| x == target).map_or(path.len(), |q| q + 1);
+                    for (o, c) in seg.into_iter().enumerate() {
+                        path.insert(at + o, c);
+                    }
+                    reindex(path, &mut pos);
+                    improved = true;
+                }
+                i += 1;
+            }
+        }
+        if !improved {
+            break;
+        }
+    }
+}
+
+/// Length under d of the minimum spanning tree of `items` (Prim, O(n^2)).
+pub fn mst_seconds(cfg: &InstrumentConfig<f64>, items: &[&Candidates]) -> f64 {
+    let n = items.len();
+    if n <= 1 {
+        return 0.0;
+    }
+    let mut in_tree = vec![false; n];
+    let mut best = vec![f64::INFINITY; n];
+    best[0] = 0.0;
+    let mut total = 0.0;
+    for _ in 0..n {
+        let Some(u) = (0..n)
+            .filter(|&i| !in_tree[i])
+            .min_by(|&a, &b| best[a].total_cmp(&best[b]))
+        else {
+            break;
+        };
+        in_tree[u] = true;
+        total += best[u];
+        for v in 0..n {
+            if !in_tree[v] {
+                let d = metric(cfg, items[u], items[v]);
+                if d < best[v] {
+                    best[v] = d;
+                }
+            }
+        }
+    }
+    total
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::brdf::frame::from_spherical;
+    use crate::instrument::default_instrument;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// The bucketed neighbour lists are the exact K nearest: same distances as a full scan.
+    #[test]
+    fn bucketed_neighbours_are_exact() {
+        let cfg = default_instrument();
+        let kin = Kinematics::new(cfg).expect("kin");
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut items = Vec::new();
+        while items.len() < 400 {
+            let wi = from_spherical(rng.random::<f64>() * 1.5, 0.0);
+            let wo = from_spherical(rng.random::<f64>() * 1.5, rng.random::<f64>() * TAU);
+            if let Ok(c) = Candidates::of(&kin, wi, wo) {
+                items.push(c);
+            }
+        }
+        let p = Points {
+            cfg: &cfg,
+            pts: items.iter().collect(),
+        };
+        let nb = p.neighbours();
+        for (a, list) in nb.iter().enumerate() {
+            let mut all: Vec<f64> = (0..items.len()).filter(|&b| b != a).map(|b| p.d(a, b)).collect();
+            all.sort_by(f64::total_cmp);
+            let got: Vec<f64> = list.iter().map(|&b| p.d(a, b)).collect();
+            assert_eq!(got.len(), NEIGHBOURS);
+            for (g, w) in got.iter().zip(&all) {
+                assert!((g - w).abs() < 1e-12, "point {a}: {got:?} vs {:?}", &all[..NEIGHBOURS]);
+            }
+        }
+    }
+}

@@ -1,0 +1,577 @@
+//! The accuracy-vs-time report (`gonio plan-report`): for each material, plan with each strategy,
+//! measure the ground truth at the planned directions (the virtual scan without effects),
+//! reconstruct every level and score it; compare the stopping rules with the oracle, the incoming
+//! spacings, and the orders' motion times.
+//!
+//! Scoring: the capture scene (`examples/sphere-point.toml`: a sphere under a point light, rendered
+//! at `size` pixels) of the reconstruction against that of the ground truth, with `render::metrics`
+//! (RMSE and PSNR of the 8-bit sRGB images as the paper computed them, mean LDR FLIP); and `brdf_log_err`, the mean over the fit's
+//! documented direction set (`fit::fit_directions`) of |log(1 + f cos) - log(1 + f_rec cos)| over
+//! RGB (Liu et al. 2023), which no single highlight pixel dominates.
+//! Cost: planning is O(n^2) in the n directions of a level (neighbour lists, spanning tree);
+//! each score is one render (size^2 reconstruction lookups) plus the fixed direction set.
+
+use super::{estimate_for, Estimate, Plan, PlanConfig, PlanError, Planner, Spacing, Strategy};
+use crate::brdf::fit::fit_directions;
+use crate::brdf::{parse_material, Material};
+use crate::plot::{Chart, Mark, Series};
+use crate::render::metrics::{compare, Comparison};
+use crate::render::{render_plain, Image, Scene};
+use glam::DVec3;
+use gonio_shared::instrument::InstrumentConfig;
+use std::fmt::Write;
+use std::path::Path;
+use std::time::Instant;
+
+/// The capture scene the renders use.
+const CAPTURE_SCENE: &str = include_str!("../../../examples/sphere-point.toml");
+
+/// Default materials: four MERL neural fits (the paper's Table 1 set) and two analytic lobes that
+/// the pure-specular warp handles badly (a sharp peak on a diffuse base; a rough lobe).
+pub const DEFAULT_MATERIALS: [&str; 6] = [
+    "nbrdf:pink-fabric",
+    "nbrdf:green-metallic-paint",
+    "nbrdf:white-diffuse-bball",
+    "nbrdf:gold-metallic-paint",
+    "ggx:alpha=0.03,diffuse=0.3,specular=1",
+    "ggx:alpha=0.5,diffuse=0.05,specular=1",
+];
+
+#[derive(Clone, Debug)]
+pub struct ReportConfig {
+    pub materials: Vec<String>,
+    pub max_level: usize,
+    pub k: usize,
+    pub size: usize,
+    /// FLIP targets for the stopping rules.
+    pub flip_targets: Vec<f64>,
+    /// Level at which the incoming spacings are compared.
+    pub spacing_level: usize,
+    /// Incoming spacing of the strategy comparison.
+    pub spacing: Spacing,
+}
+
+impl Default for ReportConfig {
+    fn default() -> Self {
+        Self {
+            materials: DEFAULT_MATERIALS.iter().map(|s| s.to_string()).collect(),
+            max_level: 4,
+            k: 8,
+            size: 128,
+            flip_targets: vec![0.1, 0.05],
+            spacing_level: 3,
+            spacing: Spacing::Angle,
+        }
+    }
+}
+
+/// Renders a material in the capture scene.
+pub struct Scorer {
+    scene: Scene,
+    pairs: Vec<(DVec3, DVec3)>,
+}
+
+impl Scorer {
+    pub fn new(size: usize) -> Result<Self, PlanError> {
+        let mut scene = Scene::from_toml(CAPTURE_SCENE, Path::new("examples/sphere-point.toml"))
+            .map_err(|e| PlanError::Invalid(e.to_string()))?;
+        scene.camera.width = size;
+        scene.camera.height = size;
+        Ok(Self {
+            scene,
+            pairs: fit_directions(),
+        })
+    }
+
+    pub fn render(&mut self, material: Box<dyn Material>) -> Image {
+        self.scene.material = material;
+        render_plain(&self.scene, &self.scene.settings, &|| {})
+    }
+
+    pub fn log_err(&self, truth: &dyn Material, test: &dyn Material) -> f64 {
+        let mut sum = 0.0;
+        for &(wi, wo) in &self.pairs {
+            let a = truth.eval(wi, wo) * wo.z;
+            let b = test.eval(wi, wo) * wo.z;
+            for c in 0..3 {
+                sum += (a[c].max(0.0).ln_1p() - b[c].max(0.0).ln_1p()).abs() / 3.0;
+            }
+        }
+        sum / self.pairs.len().max(1) as f64
+    }
+}
+
+/// RMSE and PSNR of the 8-bit sRGB images (exposure 1, clipped, values / 255, peak 1, whole image),
+/// as the paper computed them, and the renderer's mean LDR FLIP.
+pub fn score(reference: &Image, test: &Image) -> Result<Comparison, PlanError> {
+    let (c, _) = compare(reference, test).map_err(|e| PlanError::Invalid(e.to_string()))?;
+    let (a, b) = (reference.to_srgb8(), test.to_srgb8());
+    let sq: f64 = a
+        .iter()
+        .zip(&b)
+        .map(|(&x, &y)| ((x as f64 - y as f64) / 255.0).powi(2))
+        .sum();
+    let rmse = (sq / a.len().max(1) as f64).sqrt();
+    Ok(Comparison {
+        rmse,
+        psnr: crate::render::metrics::psnr(rmse),
+        flip: c.flip,
+    })
+}
+
+/// One row of `plan-report.csv`.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Row {
+    pub material: String,
+    pub estimate: String,
+    pub strategy: String,
+    pub spacing: String,
+    pub incoming: usize,
+    pub level: usize,
+    pub grid_n: usize,
+    pub grid_m: usize,
+    pub directions: usize,
+    pub gonio_seconds: f64,
+    pub raster_seconds: f64,
+    pub motion_seconds: f64,
+    pub raster_motion_seconds: f64,
+    pub lower_bound_motion_seconds: f64,
+    pub rmse: f64,
+    pub psnr: f64,
+    pub flip: f64,
+    pub brdf_log_err: f64,
+    /// Error of the same plan simulated on the estimate (the predictive rule's input).
+    pub predicted_flip: f64,
+    /// FLIP between this level's render and the previous level's (the convergence rule's input).
+    pub step_flip: f64,
+    pub plan_ms: f64,
+}
+
+struct Evaluated {
+    plan: Plan,
+    rows: Vec<Row>,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn evaluate(
+    scorer: &mut Scorer,
+    instrument: &InstrumentConfig<f64>,
+    spec: &str,
+    truth: &dyn Material,
+    truth_img: &Image,
+    estimate: &Estimate,
+    est_img: &Image,
+    config: &PlanConfig,
+) -> Result<Evaluated, PlanError> {
+    let t0 = Instant::now();
+    let plan = Planner::new(*instrument, estimate.clone())?.plan(config)?;
+    let plan_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let measured = plan.measure(truth);
+    let est_material = estimate.material();
+    let est_measured = plan.measure(est_material.as_ref());
+    let mut rows = Vec::new();
+    let mut prev: Option<Image> = None;
+    let (mut cum_motion, mut cum_raster_motion, mut cum_bound) = (0.0, 0.0, 0.0);
+    for l in &plan.levels {
+        let grid = plan.reconstruct(l.level, &measured)?;
+        let log_err = scorer.log_err(truth, &grid);
+        let img = scorer.render(Box::new(grid));
+        let c = score(truth_img, &img)?;
+        let est_grid = plan.reconstruct(l.level, &est_measured)?;
+        let est_rec = scorer.render(Box::new(est_grid));
+        let predicted = score(est_img, &est_rec)?;
+        let step = match &prev {
+            Some(p) => score(p, &img)?.flip,
+            None => f64::NAN,
+        };
+        cum_motion += l.motion_seconds;
+        cum_raster_motion += l.raster_motion_seconds;
+        cum_bound += l.lower_bound_motion_seconds;
+        rows.push(Row {
+            material: spec.to_string(),
+            estimate: estimate.model.to_spec(),
+            strategy: config.strategy.to_string(),
+            spacing: config.spacing.to_string(),
+            incoming: config.k,
+            level: l.level,
+            grid_n: l.n,
+            grid_m: l.m,
+            directions: l.cumulative_directions,
+            gonio_seconds: l.cumulative_seconds,
+            raster_seconds: l.cumulative_raster_seconds,
+            motion_seconds: cum_motion,
+            raster_motion_seconds: cum_raster_motion,
+            lower_bound_motion_seconds: cum_bound,
+            rmse: c.rmse,
+            psnr: c.psnr,
+            flip: c.flip,
+            brdf_log_err: log_err,
+            predicted_flip: predicted.flip,
+            step_flip: step,
+            plan_ms,
+        });
+        prev = Some(img);
+    }
+    Ok(Evaluated { plan, rows })
+}
+
+/// Which level each stopping rule picks for a FLIP target (1-based; the deepest level if none meets it).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct StopChoice {
+    pub material: String,
+    pub target_flip: f64,
+    pub oracle_level: Option<usize>,
+    pub predictive_level: usize,
+    pub convergence_level: usize,
+    pub oracle_minutes: Option<f64>,
+    pub predictive_minutes: f64,
+    pub convergence_minutes: f64,
+    pub predictive_true_flip: f64,
+    pub convergence_true_flip: f64,
+}
+
+pub fn stopping(rows: &[Row], target: f64) -> Option<StopChoice> {
+    let last = rows.last()?;
+    let oracle = rows.iter().find(|r| r.flip <= target);
+    let predictive = rows.iter().find(|r| r.predicted_flip <= target).unwrap_or(last);
+    // Stop after level k + 1 once its render differs from level k's by at most the target.
+    let convergence = rows.iter().find(|r| r.step_flip <= target).unwrap_or(last);
+    Some(StopChoice {
+        material: last.material.clone(),
+        target_flip: target,
+        oracle_level: oracle.map(|r| r.level),
+        predictive_level: predictive.level,
+        convergence_level: convergence.level,
+        oracle_minutes: oracle.map(|r| r.gonio_seconds / 60.0),
+        predictive_minutes: predictive.gonio_seconds / 60.0,
+        convergence_minutes: convergence.gonio_seconds / 60.0,
+        predictive_true_flip: predictive.flip,
+        convergence_true_flip: convergence.flip,
+    })
+}
+
+/// CSV with the struct's fields as columns, in declaration order (serde's field order).
+fn csv<T: serde::Serialize>(rows: &[T]) -> Result<Vec<u8>, PlanError> {
+    let mut out = String::new();
+    for (n, r) in rows.iter().enumerate() {
+        let v = serde_json::to_value(r).map_err(|e| PlanError::Invalid(e.to_string()))?;
+        let fields = fields_in_order(r)?;
+        if n == 0 {
+            out += &fields.join(",");
+            out.push('\n');
+        }
+        let cells: Vec<String> = fields
+            .iter()
+            .map(|f| match &v[f.as_str()] {
+                serde_json::Value::String(s) if s.contains(',') || s.contains('"') => {
+                    format!("\"{}\"", s.replace('"', "\"\""))
+                }
+                serde_json::Value::String(s) => s.clone(),
+                serde_json::Value::Null => String::new(),
+                other => other.to_string(),
+            })
+            .collect();
+        out += &cells.join(",");
+        out.push('\n');
+    }
+    Ok(out.into_bytes())
+}
+
+/// Field names in declaration order: serialise through a serializer that records the keys.
+fn fields_in_order<T: serde::Serialize>(r: &T) -> Result<Vec<String>, PlanError> {
+    // serde_json's Value sorts its keys; the JSON text keeps declaration order, so read the keys there.
+    let text = serde_json::to_string(r).map_err(|e| PlanError::Invalid(e.to_string()))?;
+    let mut keys = Vec::new();
+    // Walk the text: every key sits right after '{' or ',' at depth 1 and is followed by ':'.
+    let bytes = text.as_bytes();
+    let (mut depth, mut i, mut in_str, mut expect_key) = (0i32, 0usize, false, false);
+    let mut start = 0usize;
+    while i < bytes.len() {
+        let c = bytes[i];
+        if in_str {
+            if c == b'\\' {
+                i += 1;
+            } else if c == b'"' {
+                in_str = false;
+                if expect_key && depth == 1 {
+                    keys.push(text[start..i].to_string());
+                    expect_key = false;
+                }
+            }
+        } else {
+            match c {
+                b'"' => {
+                    in_str = true;
+                    start = i + 1;
+                }
+                b'{' | b'[' => {
+                    depth += 1;
+                    expect_key = c == b'{' && depth == 1;
+                }
+                b'}' | b']' => depth -= 1,
+                b',' if depth == 1 => expect_key = true,
+                _ => {}
+            }
+        }
+        i += 1;
+    }
+    Ok(keys)
+}
+
+fn write(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), PlanError> {
+    let path = dir.join(name);
+    crate::fsio::write_bytes_atomically(&path, bytes)
+        .map_err(|e| PlanError::Invalid(format!("{}: {e}", path.display())))
+}
+
+/// Run the whole report into `dir`; `progress` gets one line per finished step.
+pub fn run(
+    cfg: &ReportConfig,
+    instrument: &InstrumentConfig<f64>,
+    dir: &Path,
+    progress: &dyn Fn(&str),
+) -> Result<String, PlanError> {
+    let mut scorer = Scorer::new(cfg.size)?;
+    let mut rows: Vec<Row> = Vec::new();
+    let mut spacing_rows: Vec<Row> = Vec::new();
+    let mut stops = Vec::new();
+    // Resolve every material first: a bad spec fails before any work.
+    let mut inputs = Vec::new();
+    for spec in &cfg.materials {
+        let truth = parse_material(spec)?;
+        let estimate = estimate_for(spec)?;
+        inputs.push((spec.clone(), truth, estimate));
+    }
+    std::fs::create_dir_all(dir).map_err(|e| PlanError::Invalid(format!("{}: {e}", dir.display())))?;
+    for (spec, truth, estimate) in &inputs {
+        let truth_img = scorer.render(parse_material(spec)?);
+        let est_img = scorer.render(estimate.material());
+        for strategy in [Strategy::Specular, Strategy::Mixture, Strategy::Uniform] {
+            let config = PlanConfig {
+                strategy,
+                spacing: cfg.spacing,
+                k: cfg.k,
+                max_level: cfg.max_level,
+                bound: true,
+            };
+            let e = evaluate(
+                &mut scorer,
+                instrument,
+                spec,
+                truth.as_ref(),
+                &truth_img,
+                estimate,
+                &est_img,
+                &config,
+            )?;
+            if strategy == Strategy::Mixture {
+                for &t in &cfg.flip_targets {
+                    stops.extend(stopping(&e.rows, t));
+                }
+            }
+            progress(&format!(
+                "{spec} {strategy}: {} directions, dropped {:?}",
+                e.plan.directions.len(),
+                e.plan.dropped
+            ));
+            rows.extend(e.rows);
+        }
+        for spacing in [Spacing::Cosine, Spacing::Angle, Spacing::Rgl] {
+            let config = PlanConfig {
+                strategy: Strategy::Mixture,
+                spacing,
+                k: cfg.k,
+                max_level: cfg.spacing_level.min(cfg.max_level),
+                bound: true,
+            };
+            let e = evaluate(
+                &mut scorer,
+                instrument,
+                spec,
+                truth.as_ref(),
+                &truth_img,
+                estimate,
+                &est_img,
+                &config,
+            )?;
+            spacing_rows.extend(e.rows.last().cloned());
+        }
+        progress(&format!("{spec}: spacings done"));
+    }
+
+    write(dir, "plan-report.csv", &csv(&rows)?)?;
+    write(dir, "plan-spacing.csv", &csv(&spacing_rows)?)?;
+    write(dir, "plan-stopping.csv", &csv(&stops)?)?;
+    let md = markdown(cfg, &rows, &spacing_rows, &stops);
+    write(dir, "report.md", md.as_bytes())?;
+    charts(dir, cfg, &rows)?;
+    Ok(md)
+}
+
+fn short(spec: &str) -> &str {
+    spec.strip_prefix("nbrdf:").unwrap_or(spec)
+}
+
+fn markdown(cfg: &ReportConfig, rows: &[Row], spacing: &[Row], stops: &[StopChoice]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "# Planner: accuracy vs time\n\nRegenerate: `gonio plan-report -o DIR --max-grid {} --incoming {} --size {}{}`.\n\
+         Strategies compared with {} incoming spacing.\n\
+         Ground truth: the material itself (MERL materials: their neural fits). Estimate: analytic materials are their own \
+         estimate; MERL materials get the GGX fit (`gonio brdf fit`), standing in for the encoder. Scores: capture scene \
+         (`examples/sphere-point.toml`, {} px) of the reconstruction against the truth (RMSE and PSNR of the 8-bit sRGB images, mean LDR FLIP), and \
+         `brdf_log_err` over the fit's direction set. Times: replay of the firmware's IK with the shared motion profile \
+         plus settle and exposure from `examples/gonio.toml`.\n",
+        1usize << cfg.max_level,
+        cfg.k,
+        cfg.size,
+        cfg.materials
+            .iter()
+            .map(|m| format!(" --material {m}"))
+            .collect::<String>(),
+        cfg.spacing,
+        cfg.size
+    );
+    let _ = writeln!(s, "## Error per level\n\n| material | strategy | grid | directions | gonio min | PSNR | FLIP | brdf_log_err |\n|---|---|---|---|---|---|---|---|");
+    for r in rows {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {}x{} | {} | {:.1} | {:.2} | {:.4} | {:.4} |",
+            short(&r.material),
+            r.strategy,
+            r.grid_n,
+            r.grid_m,
+            r.directions,
+            r.gonio_seconds / 60.0,
+            r.psnr,
+            r.flip,
+            r.brdf_log_err
+        );
+    }
+    // Wins of the mixture over the other two at equal level.
+    let mut wins = [[0usize; 2]; 2];
+    let mut total = 0;
+    for r in rows.iter().filter(|r| r.strategy == "mixture") {
+        let other = |name: &str| {
+            rows.iter()
+                .find(|o| o.strategy == name && o.material == r.material && o.level == r.level)
+        };
+        if let (Some(sp), Some(un)) = (other("specular"), other("uniform")) {
+            total += 1;
+            wins[0][0] += (r.flip <= sp.flip) as usize;
+            wins[0][1] += (r.brdf_log_err <= sp.brdf_log_err) as usize;
+            wins[1][0] += (r.flip <= un.flip) as usize;
+            wins[1][1] += (r.brdf_log_err <= un.brdf_log_err) as usize;
+        }
+    }
+    let _ = writeln!(
+        s,
+        "\nMixture at least as good as pure-specular: FLIP {}/{total}, brdf_log_err {}/{total}; \
+         as uniform: FLIP {}/{total}, brdf_log_err {}/{total} (material x level).\n",
+        wins[0][0], wins[0][1], wins[1][0], wins[1][1]
+    );
+    let _ = writeln!(s, "## Motion time: optimised order vs raster (generation) order vs lower bound\n\n\
+        Lower bound: per level, the cheapest entry move from any earlier pose plus the minimum spanning tree of the level's \
+        new directions, under d(a, b) = the least synchronised move time over every IK pose of a and of b. A level's path \
+        is an entry move plus a spanning tree of its directions, and every real move costs at least d, so no order can beat it.\n\n\
+        | material | strategy | grid | motion s | raster s | bound s | raster/opt | opt/bound |\n|---|---|---|---|---|---|---|---|");
+    for r in rows {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {}x{} | {:.0} | {:.0} | {:.0} | {:.2} | {:.3} |",
+            short(&r.material),
+            r.strategy,
+            r.grid_n,
+            r.grid_m,
+            r.motion_seconds,
+            r.raster_motion_seconds,
+            r.lower_bound_motion_seconds,
+            r.raster_motion_seconds / r.motion_seconds,
+            r.motion_seconds / r.lower_bound_motion_seconds
+        );
+    }
+    let _ = writeln!(s, "\n## Stopping rules vs the oracle (mixture, FLIP target)\n\n\
+        Oracle: smallest level whose true FLIP meets the target. Predictive: smallest level whose FLIP, simulated on the \
+        estimate, meets it. Convergence: stop after level k + 1 once its render and level k's differ by at most the target.\n\n\
+        | material | target | oracle level | predictive level (true FLIP) | convergence level (true FLIP) | oracle min | predictive min | convergence min |\n|---|---|---|---|---|---|---|---|");
+    for c in stops {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} ({:.4}) | {} ({:.4}) | {} | {:.1} | {:.1} |",
+            short(&c.material),
+            c.target_flip,
+            c.oracle_level.map_or("none".into(), |l| l.to_string()),
+            c.predictive_level,
+            c.predictive_true_flip,
+            c.convergence_level,
+            c.convergence_true_flip,
+            c.oracle_minutes.map_or("-".into(), |m| format!("{m:.1}")),
+            c.predictive_minutes,
+            c.convergence_minutes
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\n## Incoming spacing (mixture, {0}x{0})\n\n| material | spacing | PSNR | FLIP | brdf_log_err |\n|---|---|---|---|---|",
+        1usize << cfg.spacing_level.min(cfg.max_level)
+    );
+    for r in spacing {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {:.2} | {:.4} | {:.4} |",
+            short(&r.material),
+            r.spacing,
+            r.psnr,
+            r.flip,
+            r.brdf_log_err
+        );
+    }
+    let _ = writeln!(s, "\nFigures: `plan-flip.png`, `plan-logerr.png` (error vs gonio minutes), `plan-order.png` (motion minutes per strategy and order).");
+    s
+}
+
+fn charts(dir: &Path, cfg: &ReportConfig, rows: &[Row]) -> Result<(), PlanError> {
+    let series = |metric: fn(&Row) -> f64| -> Vec<Series> {
+        let mut out = Vec::new();
+        for m in &cfg.materials {
+            for st in ["specular", "mixture", "uniform"] {
+                let pts: Vec<(f64, f64)> = rows
+                    .iter()
+                    .filter(|r| &r.material == m && r.strategy == st)
+                    .map(|r| (r.gonio_seconds / 60.0, metric(r)))
+                    .collect();
+                out.push(Series::new(format!("{} {st}", short(m)), pts, Mark::LineAndPoints));
+            }
+        }
+        out
+    };
+    let mut flip = Chart::new("Render error vs measurement time", "gonio minutes", "mean FLIP");
+    flip.x_log = true;
+    flip.y_log = true;
+    flip.width = 1100;
+    flip.height = 800;
+    flip.series = series(|r| r.flip);
+    let mut log = flip.clone();
+    log.title = "BRDF error vs measurement time".into();
+    log.y_label = "brdf_log_err".into();
+    log.series = series(|r| r.brdf_log_err);
+    let mut ord = Chart::new("Motion time per plan", "directions", "motion minutes");
+    ord.x_log = true;
+    ord.y_log = true;
+    let pick =
+        |f: fn(&Row) -> f64| -> Vec<(f64, f64)> { rows.iter().map(|r| (r.directions as f64, f(r) / 60.0)).collect() };
+    ord.series = vec![
+        Series::new("raster order", pick(|r| r.raster_motion_seconds), Mark::Points),
+        Series::new("optimised order", pick(|r| r.motion_seconds), Mark::Points),
+        Series::new("lower bound", pick(|r| r.lower_bound_motion_seconds), Mark::Points),
+    ];
+    for (chart, name) in [
+        (flip, "plan-flip.png"),
+        (log, "plan-logerr.png"),
+        (ord, "plan-order.png"),
+    ] {
+        crate::plot::write_png(&chart, &dir.join(name)).map_err(|e| PlanError::Invalid(e.to_string()))?;
+    }
+    Ok(())
+}

@@ -1,0 +1,212 @@
+use super::*;
+use crate::instrument::default_instrument;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+fn plan_for(estimate: Estimate, strategy: Strategy, max_level: usize) -> Plan {
+    let planner = Planner::new(default_instrument(), estimate).expect("planner");
+    planner
+        .plan(&PlanConfig {
+            strategy,
+            max_level,
+            ..PlanConfig::default()
+        })
+        .expect("plan")
+}
+
+#[test]
+fn levels_nest_and_reuse_every_direction() {
+    for strategy in [Strategy::Mixture, Strategy::Specular, Strategy::Uniform] {
+        let plan = plan_for(ggx_estimate(0.15, 0.1), strategy, 4);
+        let fine = 1usize << 4;
+        for (o, d) in plan.directions.iter().enumerate() {
+            let stride = fine >> d.level;
+            assert!(d.i % stride == 0 && d.j % stride == 0, "{strategy}: {d:?}");
+            // Execution order: levels are consecutive blocks.
+            let l = &plan.levels[d.level - 1];
+            assert!((l.first..l.first + l.count).contains(&o));
+        }
+        // Every node of level L that is measured points into the prefix of level L.
+        for l in &plan.levels {
+            let stride = fine / l.n;
+            for (&(_, i, j), &d) in &plan.node_dir {
+                if i % stride == 0 && j % stride == 0 {
+                    assert!(
+                        d < l.cumulative_directions,
+                        "{strategy} level {}: node uses {d}",
+                        l.level
+                    );
+                }
+            }
+        }
+        let values = plan.measure(&Ggx {
+            alpha: 0.15,
+            diffuse: DVec3::splat(0.1),
+            specular: DVec3::ONE,
+        });
+        for l in &plan.levels {
+            // A level's reconstruction must not read past its prefix: poison the rest.
+            let mut v = values.clone();
+            for x in v.iter_mut().skip(l.cumulative_directions) {
+                *x = DVec3::splat(f64::NAN);
+            }
+            let grid = plan.reconstruct(l.level, &v).expect("grid");
+            let probe = grid.eval(from_spherical(0.3, 0.0), from_spherical(0.4, 2.0));
+            assert!(probe.is_finite(), "{strategy} level {}", l.level);
+        }
+    }
+}
+
+#[test]
+fn plans_hold_only_reachable_poses_and_encode_checked() {
+    let cfg = default_instrument();
+    let kin = Kinematics::new(cfg).expect("kin");
+    for strategy in [Strategy::Mixture, Strategy::Specular, Strategy::Uniform] {
+        let plan = plan_for(ggx_estimate(0.3, 0.2), strategy, 3);
+        for d in &plan.directions {
+            kin.check_pose(&d.pose).expect("reachable");
+            let (wi, wo) = kin.forward(&d.pose);
+            // Isotropic: the pair is reproduced up to a rotation about the normal.
+            assert!((wi.z - d.wi.z).abs() < 1e-9 && (wo.z - d.wo.z).abs() < 1e-9);
+            assert!((wi.dot(wo) - d.wi.dot(d.wo)).abs() < 1e-9);
+        }
+        let bytes = file::encode_plan(&plan.wire()).expect("encode");
+        let replay = plan.check_encoded(&cfg, &bytes).expect("check");
+        let motion: f64 = plan.levels.iter().map(|l| l.motion_seconds).sum();
+        // f32 directions and f32 IK: the replay agrees with the f64 plan to well under a percent.
+        assert!(
+            (replay - motion).abs() < 1e-3 * motion,
+            "{strategy}: {replay} vs {motion}"
+        );
+        // A damaged file is refused.
+        let mut bad = bytes.clone();
+        bad[5] ^= 0x40;
+        assert!(plan.check_encoded(&cfg, &bad).is_err());
+    }
+}
+
+#[test]
+fn optimised_time_is_the_sum_of_its_moves_and_respects_the_bound() {
+    let cfg = default_instrument();
+    let plan = plan_for(ggx_estimate(0.1, 0.05), Strategy::Mixture, 4);
+    let kin = Kinematics::new(cfg).expect("kin");
+    let mut prev = kin.rest_pose();
+    let mut total = 0.0;
+    for d in &plan.directions {
+        // Independently: the shared motion profile between consecutive poses.
+        total += gonio_shared::motion::sync_move_time(&cfg, &prev.to_array(), &d.pose.to_array())
+            + cfg.settle_ms as f64 * 1e-3
+            + cfg.exposure_us as f64 * 1e-6;
+        prev = d.pose;
+    }
+    assert!(
+        (total - plan.total_seconds()).abs() < 1e-9 * total,
+        "{total} vs {}",
+        plan.total_seconds()
+    );
+    for l in &plan.levels {
+        println!(
+            "level {} ({} new): optimised {:.1} s, raster {:.1} s, bound {:.1} s",
+            l.level, l.count, l.motion_seconds, l.raster_motion_seconds, l.lower_bound_motion_seconds
+        );
+        assert!(l.lower_bound_motion_seconds <= l.motion_seconds + 1e-9);
+        assert!(l.motion_seconds <= l.raster_motion_seconds + 1e-9);
+    }
+}
+
+#[test]
+fn candidates_hold_every_pose_the_ik_can_pick() {
+    let kin = Kinematics::new(default_instrument()).expect("kin");
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let mut checked = 0;
+    for _ in 0..300 {
+        let wi = from_spherical(rng.random::<f64>() * 1.5, 0.0);
+        let wo = from_spherical(rng.random::<f64>() * 1.5, rng.random::<f64>() * std::f64::consts::TAU);
+        let Ok(c) = Candidates::of(&kin, wi, wo) else { continue };
+        for _ in 0..10 {
+            let cur = Pose {
+                light: rng.random_range(-3.0..3.0),
+                detector: rng.random_range(-3.0..3.0),
+                tilt: rng.random_range(-1.4..1.4),
+                azimuth: 0.0,
+            };
+            let p = kin
+                .inverse(order_v3(wi), order_v3(wo), &cur)
+                .expect("reachable from anywhere");
+            let found = c.0.iter().any(|q| {
+                q.to_array()
+                    .iter()
+                    .zip(p.to_array().iter())
+                    .all(|(a, b)| (a - b).abs() < 1e-9)
+            });
+            assert!(found, "{p:?} not in {:?}", c.0);
+            checked += 1;
+        }
+    }
+    assert!(checked > 1000);
+}
+
+fn order_v3(w: DVec3) -> gonio_shared::vec3::Vec3<f64> {
+    gonio_shared::vec3::Vec3::new(w.x, w.y, w.z)
+}
+
+#[test]
+fn time_budget_never_exceeded() {
+    let plan = plan_for(ggx_estimate(0.2, 0.1), Strategy::Mixture, 4);
+    let totals: Vec<f64> = plan.levels.iter().map(|l| l.cumulative_seconds).collect();
+    for budget in [1.0, totals[0], totals[0] + 1.0, totals[2] - 1e-6, totals[2], 1e9] {
+        match plan.level_within_budget(budget) {
+            Some(l) => {
+                assert!(plan.levels[l - 1].cumulative_seconds <= budget);
+                if l < plan.levels.len() {
+                    assert!(plan.levels[l].cumulative_seconds > budget);
+                }
+            }
+            None => assert!(totals[0] > budget),
+        }
+    }
+}
+
+#[test]
+fn mirror_like_estimate_gives_a_valid_plan() {
+    for alpha in [0.0, 1e-4] {
+        for strategy in [Strategy::Mixture, Strategy::Specular] {
+            let plan = plan_for(ggx_estimate(alpha, 0.0), strategy, 3);
+            assert!(!plan.directions.is_empty());
+            let wire = plan.wire();
+            for (a, d) in wire.iter().enumerate() {
+                assert!([d.theta_i, d.phi_i, d.theta_o, d.phi_o].iter().all(|x| x.is_finite()));
+                for e in &wire[a + 1..] {
+                    assert_ne!(d, e, "alpha {alpha} {strategy}: duplicate pose");
+                }
+            }
+            assert!(plan.total_seconds().is_finite());
+        }
+    }
+}
+
+#[test]
+fn spacings_span_the_range_and_increase() {
+    for s in [Spacing::Cosine, Spacing::Angle, Spacing::Rgl] {
+        for alpha in [0.0, 0.05, 0.5, 1.0] {
+            let t = spaced_thetas(s, 8, alpha);
+            assert_eq!(t.len(), 8);
+            assert_eq!(t[0], 0.0);
+            assert!((t[7] - THETA_I_MAX).abs() < 1e-12);
+            assert!(t.windows(2).all(|w| w[0] < w[1]), "{s} {alpha}: {t:?}");
+        }
+    }
+}
+
+#[test]
+fn bad_configs_are_refused() {
+    let planner = Planner::new(default_instrument(), ggx_estimate(0.2, 0.1)).expect("planner");
+    for (k, max_level) in [(0, 2), (8, 0), (8, MAX_LEVEL + 1)] {
+        let r = planner.plan(&PlanConfig {
+            k,
+            max_level,
+            ..PlanConfig::default()
+        });
+        assert!(r.is_err());
+    }
+}
