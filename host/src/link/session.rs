@@ -459,6 +459,8 @@ impl<T: Transport> Link<T> {
         let mut chunk_seqs: VecDeque<(u16, u32)> = VecDeque::new();
         // Refusals of frames sent before this sequence number are stale: the plan was rewound since.
         let mut epoch = self.next_seq();
+        // When the plan credit last grew (or was last asked for).
+        let mut last_grant = Instant::now();
         loop {
             while next_send < total && self.window_free() {
                 let len = (total - next_send).min(CHUNK_DIRECTIONS as u32);
@@ -491,7 +493,11 @@ impl<T: Transport> Link<T> {
             let got_msg = msg.is_some();
             match msg {
                 Some(DeviceMsg::Credit { next_index, free }) => {
-                    credit_limit = credit_limit.max(next_index.saturating_add(u32::from(free)));
+                    let limit = next_index.saturating_add(u32::from(free));
+                    if limit > credit_limit {
+                        credit_limit = limit;
+                        last_grant = Instant::now();
+                    }
                 }
                 Some(DeviceMsg::Measurement(m)) => {
                     if m.seq == next_seq {
@@ -519,7 +525,11 @@ impl<T: Transport> Link<T> {
                 Some(DeviceMsg::Fault(f)) => return Err(self.stop_on_fault(Some(f), next_seq, sink)),
                 Some(DeviceMsg::Status(s)) => {
                     // The same grant as a Credit: recovers from a lost one (see `DeviceMsg::Credit`).
-                    credit_limit = credit_limit.max(s.plan_next.saturating_add(u32::from(s.plan_free)));
+                    let limit = s.plan_next.saturating_add(u32::from(s.plan_free));
+                    if limit > credit_limit {
+                        credit_limit = limit;
+                        last_grant = Instant::now();
+                    }
                     if s.state == ControllerState::Fault {
                         return Err(self.stop_on_fault(s.last_fault, next_seq, sink));
                     }
@@ -597,6 +607,15 @@ impl<T: Transport> Link<T> {
             if next_seq == total {
                 self.flush()?;
                 return Ok(());
+            }
+            let next_len = (total - next_send).min(CHUNK_DIRECTIONS as u32);
+            let credit_starved = next_len > 0 && next_send + next_len > credit_limit;
+            if credit_starved && last_grant.elapsed() >= self.timing.idle && self.window_free() {
+                // Waiting for room while measurements still flow (so never quiet): a `Credit` may
+                // have been lost; the status answer carries the same grant.
+                self.send(&HostMsg::GetStatus)?;
+                self.stats.status_requests += 1;
+                last_grant = Instant::now();
             }
             if last_activity.elapsed() >= self.timing.idle && self.window_free() {
                 // Quiet: a lost Credit, Measurement or Status; ask where the device stands. The
