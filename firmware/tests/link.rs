@@ -245,7 +245,11 @@ fn a_late_hello_then_a_resend_never_runs_a_command_twice() {
         replay.extend_from_slice(f);
     }
     let r = b.send_raw(&replay);
-    assert!(r.iter().all(|m| matches!(m, DeviceMsg::Ack { .. } | DeviceMsg::Hello(_))), "{r:?}");
+    assert!(
+        r.iter()
+            .all(|m| matches!(m, DeviceMsg::Ack { .. } | DeviceMsg::Hello(_))),
+        "{r:?}"
+    );
     assert_eq!(acks(&r), (0..=start + 1).collect::<Vec<_>>());
     b.run_idle(600_000_000);
     assert_eq!(b.hal.step_count, 0, "a resent command moved the instrument");

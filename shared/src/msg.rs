@@ -599,8 +599,11 @@ pub(crate) mod tests {
                 status,
                 measurement,
                 fault().prop_map(DeviceMsg::Fault),
-                (any::<u16>(), command(), refuse_reason())
-                    .prop_map(|(seq, command, reason)| DeviceMsg::Refused { seq, command, reason }),
+                (any::<u16>(), command(), refuse_reason()).prop_map(|(seq, command, reason)| DeviceMsg::Refused {
+                    seq,
+                    command,
+                    reason
+                }),
             ]
         }
     }

@@ -164,7 +164,7 @@ pub mod trig32 {
     /// Largest `|x|` served.
     pub const LIMIT: f32 = 8192.0;
     const FOPI: f32 = 1.273_239_5; // 4 / pi
-    // pi/4 = DP1 + DP2 + DP3, DP1 and DP2 with few enough bits that y * DP1, y * DP2 are exact.
+                                   // pi/4 = DP1 + DP2 + DP3, DP1 and DP2 with few enough bits that y * DP1, y * DP2 are exact.
     const DP1: f32 = 0.785_156_25;
     const DP2: f32 = 2.418_756_5e-4;
     const DP3: f32 = 3.774_895e-8;
@@ -279,8 +279,18 @@ mod tests {
         for k in -n..=n {
             check(tau * k as f32 / n as f32);
         }
-        for x in [0.0, -0.0, f32::MIN_POSITIVE, 1e-30, 1e-8, 0.785_398_2, 1.570_796_4, 3.141_592_7, 4.712_389, 6.283_185_5]
-        {
+        for x in [
+            0.0,
+            -0.0,
+            f32::MIN_POSITIVE,
+            1e-30,
+            1e-8,
+            core::f32::consts::FRAC_PI_4,
+            core::f32::consts::FRAC_PI_2,
+            core::f32::consts::PI,
+            3.0 * core::f32::consts::FRAC_PI_2,
+            core::f32::consts::TAU,
+        ] {
             check(x);
             check(-x);
         }
@@ -294,7 +304,14 @@ mod tests {
                 assert!(err <= 1.0 / 8_388_608.0, "x = {x:e}: error {err:e}");
             }
         }
-        for x in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, trig32::LIMIT * 1.001, -1e30, f32::MAX] {
+        for x in [
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            trig32::LIMIT * 1.001,
+            -1e30,
+            f32::MAX,
+        ] {
             assert!(trig32::sin(x).is_nan() && trig32::cos(x).is_nan(), "{x}");
         }
     }

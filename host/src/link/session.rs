@@ -9,8 +9,8 @@ use gonio_shared::frame::{encode, FrameDecoder, MAX_WIRE_FRAME};
 use gonio_shared::instrument::InstrumentConfig;
 use gonio_shared::msg::caps::CHUNK_DIRECTIONS;
 use gonio_shared::msg::{
-    check_handshake, Command, ControllerState, DeviceMsg, Direction, Fault, HandshakeError, Hello, HostMsg, Measurement,
-    PlanChunk, RefuseReason, Status,
+    check_handshake, Command, ControllerState, DeviceMsg, Direction, Fault, HandshakeError, Hello, HostMsg,
+    Measurement, PlanChunk, RefuseReason, Status,
 };
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};

@@ -455,11 +455,23 @@ mod tests {
         use gonio_shared::frame::{encode, FrameDecoder, MAX_WIRE_FRAME};
         use gonio_shared::msg::DeviceMsg;
         let msgs = [
-            DeviceMsg::Credit { next_index: 0, free: 512 },
+            DeviceMsg::Credit {
+                next_index: 0,
+                free: 512,
+            },
             DeviceMsg::Ack { seq: 1 },
-            DeviceMsg::Credit { next_index: 8, free: 504 },
-            DeviceMsg::Credit { next_index: 16, free: 504 },
-            DeviceMsg::Credit { next_index: 24, free: 504 },
+            DeviceMsg::Credit {
+                next_index: 8,
+                free: 504,
+            },
+            DeviceMsg::Credit {
+                next_index: 16,
+                free: 504,
+            },
+            DeviceMsg::Credit {
+                next_index: 24,
+                free: 504,
+            },
         ];
         let mut loop_back = Loop(VecDeque::new());
         for (k, m) in msgs.iter().enumerate() {
