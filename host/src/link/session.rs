@@ -15,6 +15,10 @@ use gonio_shared::msg::{
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
+/// Status answers in a row showing a device out of plan that grants no credit, before the scan
+/// gives up (about 10 s at the idle poll interval).
+const STARVED_STATUS_LIMIT: u32 = 25;
+
 /// Frames sent and not yet acknowledged, at most.
 const WINDOW: usize = 16;
 /// Acknowledge measurements at least every this many. Each acknowledgement costs a journal sync
@@ -44,6 +48,9 @@ pub enum LinkError {
     UnnamedFault { pose: String },
     #[error("{0}")]
     Sink(String),
+    /// The protocol deadlocked (a device that ran out of plan and grants no credit).
+    #[error("the scan stalled: {0}")]
+    Stalled(String),
 }
 
 impl LinkError {
@@ -459,8 +466,12 @@ impl<T: Transport> Link<T> {
         let mut chunk_seqs: VecDeque<(u16, u32)> = VecDeque::new();
         // Refusals of frames sent before this sequence number are stale: the plan was rewound since.
         let mut epoch = self.next_seq();
-        // When the plan credit last grew (or was last asked for).
-        let mut last_grant = Instant::now();
+        // When the plan credit last grew (or was last asked for). The configuration's grant went to
+        // `prepare`: ask for the current one at once.
+        let mut last_grant = Instant::now()
+            .checked_sub(self.timing.idle)
+            .unwrap_or_else(Instant::now);
+        let mut starved_statuses = 0u32;
         loop {
             while next_send < total && self.window_free() {
                 let len = (total - next_send).min(CHUNK_DIRECTIONS as u32);
@@ -529,6 +540,22 @@ impl<T: Transport> Link<T> {
                     if limit > credit_limit {
                         credit_limit = limit;
                         last_grant = Instant::now();
+                    }
+                    // Deadlock watch: the device has run out of plan (everything it took is
+                    // measured), we have sent everything it granted, and its status grants nothing
+                    // more. Never so with a working device; a bounded number of such answers in a
+                    // row is an error rather than a scan that hangs.
+                    let len = (total - next_send).min(CHUNK_DIRECTIONS as u32);
+                    let starved = len > 0
+                        && next_send + len > credit_limit
+                        && s.plan_next == next_send
+                        && s.plan_done >= s.plan_next
+                        && matches!(s.state, ControllerState::Running | ControllerState::Ready);
+                    starved_statuses = if starved { starved_statuses + 1 } else { 0 };
+                    if starved_statuses > STARVED_STATUS_LIMIT {
+                        return Err(LinkError::Stalled(format!(
+                            "the device ran out of plan at direction {next_send} of {total} and grants no credit"
+                        )));
                     }
                     if s.state == ControllerState::Fault {
                         return Err(self.stop_on_fault(s.last_fault, next_seq, sink));
