@@ -4,7 +4,11 @@
 //!   carrying the sequence number the link expects next, so the host resends from there.
 //! - Host sequence numbers: the expected one is executed and acknowledged; a recent one (a resend
 //!   whose `Ack` was lost) is acknowledged again but not executed; anything else is a gap and is
-//!   NAKed. `Hello` is the resynchronisation point: it is accepted at any sequence number.
+//!   NAKed. `Hello` with sequence number 0 and a session id other than the current session's opens
+//!   a new session (the count restarts at 1); every other `Hello` obeys the rules above like any
+//!   frame, and a duplicate of the opening one is answered again (see `msg::Hello`). So a late,
+//!   duplicated or reordered `Hello` never restarts the count mid-session, and a resent frame is
+//!   never executed twice.
 //! - Output frames go into a bounded byte outbox that the binary drains to USB/UART. Input is only
 //!   consumed while the outbox has room for the worst-case replies to one frame, so a host that
 //!   does not read cannot make the firmware drop a reply: it is throttled instead.
@@ -13,7 +17,7 @@ use crate::capacity::OUTBOX_BYTES;
 use crate::controller::Controller;
 use crate::hal::Hal;
 use gonio_shared::frame::{encode, FrameDecoder, MAX_WIRE_FRAME};
-use gonio_shared::msg::{DeviceMsg, HostMsg, NakReason};
+use gonio_shared::msg::{DeviceMsg, Hello, HostMsg, NakReason};
 use heapless::Deque;
 
 /// How far behind the expected sequence number a frame counts as a duplicate (re-ACKed) rather
@@ -44,6 +48,8 @@ pub struct Link {
     decoder: FrameDecoder,
     /// Host sequence number expected next.
     expected: u16,
+    /// Session id of the `Hello` that opened the current session; `None` before the first.
+    session: Option<u32>,
     /// Sequence number of our next frame.
     tx_seq: u16,
     outbox: Deque<u8, OUTBOX_BYTES>,
@@ -64,6 +70,7 @@ impl Link {
         Self {
             decoder: FrameDecoder::new(),
             expected: 0,
+            session: None,
             tx_seq: 0,
             outbox: Deque::new(),
             lost_replies: 0,
@@ -134,17 +141,28 @@ impl Link {
     }
 
     fn on_frame<H: Hal>(&mut self, seq: u16, msg: HostMsg, controller: &mut Controller, hal: &mut H) {
-        let fresh = seq == self.expected || matches!(msg, HostMsg::Hello(_));
-        if fresh {
+        let hello_session = match &msg {
+            HostMsg::Hello(h) if seq == 0 => Some(h.session),
+            _ => None,
+        };
+        let new_session = hello_session.is_some_and(|s| self.session != Some(s));
+        if new_session {
+            self.session = hello_session;
+        }
+        if new_session || seq == self.expected {
             self.expected = seq.wrapping_add(1);
             self.reply(&DeviceMsg::Ack { seq });
-            controller.handle(msg, hal, self);
+            controller.handle(seq, msg, hal, self);
             return;
         }
         let behind = self.expected.wrapping_sub(seq);
         if behind <= DUPLICATE_WINDOW {
             // Already executed; the host missed our Ack.
             self.reply(&DeviceMsg::Ack { seq });
+            if let Some(session) = hello_session {
+                // A resent opening Hello: the host may have missed our answer too.
+                self.reply(&DeviceMsg::Hello(Hello::ours(session)));
+            }
         } else {
             self.nak(NakReason::Sequence);
         }

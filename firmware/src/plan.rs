@@ -78,12 +78,14 @@ impl PlanQueue {
         self.queue.is_empty()
     }
 
-    /// Directions the queue can take now (what a `Credit` grants); 0 once the plan has ended.
+    /// Directions the queue can take now (what a `Credit` grants); once the plan's end is known,
+    /// no more than the directions still missing up to it (0 when all are in).
     pub fn free(&self) -> u16 {
-        if self.end.is_some() {
-            return 0;
-        }
-        let free = PLAN_CAPACITY.saturating_sub(self.queue.len());
+        let room = PLAN_CAPACITY.saturating_sub(self.queue.len());
+        let free = match self.end {
+            Some(end) => room.min(usize::try_from(end.saturating_sub(self.next_index)).unwrap_or(usize::MAX)),
+            None => room,
+        };
         u16::try_from(free).unwrap_or(u16::MAX)
     }
 

@@ -19,7 +19,7 @@ fn fixed(cases: u32) -> proptest::test_runner::Config {
 
 fn refused(msgs: &[DeviceMsg]) -> Option<(Command, RefuseReason)> {
     msgs.iter().find_map(|m| match m {
-        DeviceMsg::Refused { command, reason } => Some((*command, *reason)),
+        DeviceMsg::Refused { command, reason, .. } => Some((*command, *reason)),
         _ => None,
     })
 }
@@ -188,8 +188,8 @@ fn commands_in_the_wrong_state_are_refused_with_a_reason() {
     assert_eq!(refused(&b.send(HostMsg::Home)), Some((Command::Home, NoHandshake)));
     // A host of another schema is answered (so it can report) but not served.
     let other = Hello {
-        protocol: Hello::OURS.protocol,
         schema: SCHEMA_HASH ^ 1,
+        ..Hello::OURS
     };
     assert!(b.send(HostMsg::Hello(other)).contains(&DeviceMsg::Hello(Hello::OURS)));
     assert_eq!(refused(&b.send(HostMsg::Start)), Some((Command::Start, NoHandshake)));

@@ -302,10 +302,11 @@ fn a_device_of_another_protocol_version_is_refused_with_a_clear_message() {
                 };
                 for &b in &buf[..n] {
                     if let Some(Ok(f)) = dec.push::<HostMsg>(b) {
-                        if let HostMsg::Hello(_) = f.msg {
+                        if let HostMsg::Hello(h) = f.msg {
                             let theirs = Hello {
                                 protocol: Hello::OURS.protocol + 1,
                                 schema: Hello::OURS.schema,
+                                session: h.session,
                             };
                             let mut out = [0u8; MAX_WIRE_FRAME];
                             let k = encode(0, &DeviceMsg::Hello(theirs), &mut out).unwrap();

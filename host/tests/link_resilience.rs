@@ -20,6 +20,7 @@ type Readings = Vec<(u32, Vec<u32>, [i32; 4])>;
 
 fn scan_with(
     fx: &Fixture,
+    n: usize,
     faults: FaultConfig,
     out: &str,
 ) -> (Readings, link::RunSummary, (link::FaultCounts, link::FaultCounts)) {
@@ -27,10 +28,10 @@ fn scan_with(
     let model = SimModel::load(&fx.scene, cfg, 1).unwrap();
     let sim = SimHandle::spawn(Arc::new(model), SPEEDUP, None).unwrap();
     let port = sim.path().display().to_string();
-    let plan = plan(N);
+    let plan = plan(n);
     let out = fx.path(out);
     std::fs::create_dir_all(&out).unwrap();
-    let mut journal = Journal::create(&out, 1, N as u32).unwrap();
+    let mut journal = Journal::create(&out, 1, n as u32).unwrap();
     let serial = SerialTransport::open(&port).unwrap();
     let faulty = FaultyTransport::new(serial, faults);
     // Keep a handle on the injector's counters through a shared cell.
@@ -62,9 +63,9 @@ fn scan_with(
     sim.stop();
     // Exactly once: one journal line per plan direction, each index once.
     let mut indices = journal_indices(&out);
-    assert_eq!(indices.len(), N, "journal lines under {faults:?}");
+    assert_eq!(indices.len(), n, "journal lines under {faults:?}");
     indices.sort_unstable();
-    assert_eq!(indices, (0..N as u32).collect::<Vec<_>>());
+    assert_eq!(indices, (0..n as u32).collect::<Vec<_>>());
     let records = journal
         .records()
         .values()
@@ -87,7 +88,7 @@ fn faults(drop: f64, corrupt: f64, duplicate: f64, delay: f64, seed: u64) -> Fau
 #[test]
 fn five_percent_faults_each_and_all_together_lose_and_duplicate_nothing() {
     let fx = Fixture::new(N, "");
-    let (clean, clean_summary, _) = scan_with(&fx, FaultConfig::NONE, "clean");
+    let (clean, clean_summary, _) = scan_with(&fx, N, FaultConfig::NONE, "clean");
     assert_eq!(clean_summary.stats.retransmits, 0, "{:?}", clean_summary.stats);
     assert!(
         clean.iter().all(|(_, c, _)| c.iter().any(|&v| v > 0)),
@@ -103,7 +104,7 @@ fn five_percent_faults_each_and_all_together_lose_and_duplicate_nothing() {
         ("all", faults(0.05, 0.05, 0.05, 0.05, 15)),
     ];
     for (name, f) in cases {
-        let (got, summary, (tx, rx)) = scan_with(&fx, f, name);
+        let (got, summary, (tx, rx)) = scan_with(&fx, N, f, name);
         eprintln!(
             "{name}: host->device {tx:?}, device->host {rx:?}; link {:?}",
             summary.stats
@@ -116,4 +117,24 @@ fn five_percent_faults_each_and_all_together_lose_and_duplicate_nothing() {
         );
         assert_eq!(got, clean, "{name}: readings differ from the clean run");
     }
+}
+
+/// Every `Credit` after the configuration's first is lost, on a plan three times the firmware's
+/// plan buffer (so the scan needs many fresh grants): the host takes them from the `Status` it
+/// polls, and every measurement still arrives exactly once (checked in `scan_with`).
+#[test]
+fn with_every_credit_lost_the_scan_completes_on_status_alone() {
+    const BIG: usize = 3 * gonio_firmware::capacity::PLAN_CAPACITY;
+    let fx = Fixture::new(BIG, "");
+    let f = FaultConfig {
+        drop_credits: u32::MAX,
+        ..FaultConfig::NONE
+    };
+    let (got, summary, (_, rx)) = scan_with(&fx, BIG, f, "no-credit");
+    eprintln!("device->host {rx:?}; link {:?}", summary.stats);
+    assert_eq!(got.len(), BIG);
+    // Each accepted chunk is answered with a Credit: all of them were dropped.
+    let chunks = BIG.div_ceil(gonio_shared::msg::caps::CHUNK_DIRECTIONS) as u64;
+    assert!(rx.dropped >= chunks - 1, "{rx:?}");
+    assert!(summary.stats.status_requests > 0);
 }

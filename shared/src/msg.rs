@@ -42,18 +42,35 @@ pub struct PlanChunk {
 }
 
 /// The version handshake, sent by both sides: each checks the other's with [`check_handshake`].
+///
+/// Sessions: the host picks a `session` id per connection (random, so two connections differ) and
+/// sends its `Hello` with sequence number 0, resending that same frame until answered. The
+/// firmware's link opens a new session, restarting its sequence count at 1, only for a `Hello` with
+/// sequence number 0 whose `session` differs from the current session's. Any other `Hello` (a
+/// duplicate of the opening one, a late or reordered copy) follows the ordinary sequence rules and
+/// never restarts the count: a duplicate of the opening `Hello` is acknowledged and answered again,
+/// one in sequence re-checks the versions, anything else is NAKed. The firmware answers with its
+/// own `Hello` echoing the session id of the `Hello` it answers, so the host can tell its answer
+/// from a stale one.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
 pub struct Hello {
     pub protocol: u16,
     pub schema: u32,
+    pub session: u32,
 }
 
 impl Hello {
-    /// What this build speaks.
-    pub const OURS: Hello = Hello {
-        protocol: PROTOCOL_VERSION,
-        schema: SCHEMA_HASH,
-    };
+    /// What this build speaks, in session 0.
+    pub const OURS: Hello = Hello::ours(0);
+
+    /// What this build speaks, in `session`.
+    pub const fn ours(session: u32) -> Hello {
+        Hello {
+            protocol: PROTOCOL_VERSION,
+            schema: SCHEMA_HASH,
+            session,
+        }
+    }
 }
 
 /// A host and firmware that disagree on the protocol refuse each other.
@@ -68,12 +85,13 @@ pub struct HandshakeError {
     pub theirs: Hello,
 }
 
+/// Compares versions only (not the session id).
 pub fn check_handshake(theirs: Hello) -> Result<(), HandshakeError> {
-    if theirs == Hello::OURS {
+    if theirs.protocol == PROTOCOL_VERSION && theirs.schema == SCHEMA_HASH {
         Ok(())
     } else {
         Err(HandshakeError {
-            ours: Hello::OURS,
+            ours: Hello::ours(theirs.session),
             theirs,
         })
     }
@@ -208,6 +226,10 @@ pub struct Status {
     pub plan_next: u32,
     /// Plan directions measured so far.
     pub plan_done: u32,
+    /// Free plan directions from `plan_next` on: the same grant as a [`DeviceMsg::Credit`]
+    /// `{ next_index: plan_next, free: plan_free }` (0 when not streaming: no configuration, every
+    /// direction up to the plan's end received, fault, done).
+    pub plan_free: u16,
     /// Measurements kept until acknowledged.
     pub unacked: u16,
     /// Frames dropped by the decoder since start.
@@ -230,6 +252,15 @@ pub enum DeviceMsg {
         reason: NakReason,
     },
     /// Flow control: the firmware can take `free` more directions from `next_index` on.
+    ///
+    /// Within one configuration `next_index + free` never decreases (taking k directions moves
+    /// `next_index` up by k and `free` down by k; measuring one frees a slot) until `PlanEnd`,
+    /// after which it is capped at the plan's end. So every grant, from a `Credit` or from a
+    /// `Status` (`plan_next + plan_free`), is a valid limit whenever it arrives (below `total`),
+    /// and the host keeps the largest it has seen. A `Credit` is sent after each accepted
+    /// chunk and whenever a chunk's worth of room has opened up since the last one; it is not
+    /// resent. Recovery from a lost `Credit` is the host's `GetStatus`: the `Status` answer
+    /// carries the same grant.
     Credit {
         next_index: u32,
         free: u16,
@@ -237,7 +268,10 @@ pub enum DeviceMsg {
     Status(Status),
     Measurement(Measurement),
     Fault(Fault),
+    /// The host frame with sequence number `seq` (a `command`) was not acted on, for `reason`.
+    /// Sent after that frame's `Ack`.
     Refused {
+        seq: u16,
         command: Command,
         reason: RefuseReason,
     },
@@ -251,17 +285,19 @@ pub(crate) mod tests {
     fn handshake_accepts_ours_and_refuses_others_with_a_clear_message() {
         assert!(check_handshake(Hello::OURS).is_ok());
         let theirs = Hello {
-            protocol: PROTOCOL_VERSION,
             schema: SCHEMA_HASH ^ 1,
+            ..Hello::OURS
         };
         let e = check_handshake(theirs).unwrap_err();
         let text = std::format!("{e}");
         assert!(text.contains("protocol mismatch"), "{text}");
         let old = Hello {
             protocol: PROTOCOL_VERSION + 1,
-            schema: SCHEMA_HASH,
+            ..Hello::OURS
         };
         assert!(check_handshake(old).is_err());
+        // The session id is not part of the versions.
+        assert!(check_handshake(Hello::ours(u32::MAX)).is_ok());
     }
 
     /// The largest value of each variant that can carry variable-length data, with every varint
@@ -280,7 +316,8 @@ pub(crate) mod tests {
         let host = std::vec![
             HostMsg::Hello(Hello {
                 protocol: u16::MAX,
-                schema: u32::MAX
+                schema: u32::MAX,
+                session: u32::MAX,
             }),
             HostMsg::Configure(InstrumentConfig::<f32>::reference()),
             HostMsg::Plan(PlanChunk {
@@ -303,6 +340,7 @@ pub(crate) mod tests {
                 homed: true,
                 plan_next: u32::MAX,
                 plan_done: u32::MAX,
+                plan_free: u16::MAX,
                 unacked: u16::MAX,
                 bad_frames: u32::MAX,
                 steps: [i32::MIN; AXIS_COUNT],
@@ -311,7 +349,13 @@ pub(crate) mod tests {
                     reason: Unreachable::Limit(Axis::Azimuth)
                 }),
             }),
+            DeviceMsg::Hello(Hello {
+                protocol: u16::MAX,
+                schema: u32::MAX,
+                session: u32::MAX,
+            }),
             DeviceMsg::Refused {
+                seq: u16::MAX,
                 command: Command::Resend,
                 reason: RefuseReason::Forgotten { oldest_kept: u32::MAX }
             },
@@ -437,7 +481,11 @@ pub(crate) mod tests {
             })
         }
         fn hello() -> impl Strategy<Value = Hello> {
-            (any::<u16>(), any::<u32>()).prop_map(|(protocol, schema)| Hello { protocol, schema })
+            (any::<u16>(), any::<u32>(), any::<u32>()).prop_map(|(protocol, schema, session)| Hello {
+                protocol,
+                schema,
+                session,
+            })
         }
         fn command() -> impl Strategy<Value = Command> {
             use Command::*;
@@ -523,17 +571,19 @@ pub(crate) mod tests {
                 any::<u32>(),
                 any::<u32>(),
                 any::<u16>(),
+                any::<u16>(),
                 any::<u32>(),
                 steps(),
                 proptest::option::of(fault()),
             )
                 .prop_map(
-                    |(state, homed, plan_next, plan_done, unacked, bad_frames, steps, last_fault)| {
+                    |(state, homed, plan_next, plan_done, plan_free, unacked, bad_frames, steps, last_fault)| {
                         DeviceMsg::Status(Status {
                             state,
                             homed,
                             plan_next,
                             plan_done,
+                            plan_free,
                             unacked,
                             bad_frames,
                             steps,
@@ -549,7 +599,11 @@ pub(crate) mod tests {
                 status,
                 measurement,
                 fault().prop_map(DeviceMsg::Fault),
-                (command(), refuse_reason()).prop_map(|(command, reason)| DeviceMsg::Refused { command, reason }),
+                (any::<u16>(), command(), refuse_reason()).prop_map(|(seq, command, reason)| DeviceMsg::Refused {
+                    seq,
+                    command,
+                    reason
+                }),
             ]
         }
     }

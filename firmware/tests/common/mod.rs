@@ -196,6 +196,8 @@ pub struct Bench {
     pub log: Vec<DeviceMsg>,
     /// Device frame sequence numbers seen (to check the device numbers its frames).
     pub device_seqs: Vec<u16>,
+    /// Every frame `send` sent, with its sequence number (to replay them).
+    pub sent: Vec<(u16, Vec<u8>)>,
 }
 
 impl Bench {
@@ -208,6 +210,7 @@ impl Bench {
             host_seq: 0,
             log: Vec::new(),
             device_seqs: Vec::new(),
+            sent: Vec::new(),
         }
     }
 
@@ -235,7 +238,9 @@ impl Bench {
     pub fn send(&mut self, msg: HostMsg) -> Vec<DeviceMsg> {
         let seq = self.host_seq;
         self.host_seq = self.host_seq.wrapping_add(1);
-        self.send_raw(&frame(seq, &msg))
+        let f = frame(seq, &msg);
+        self.sent.push((seq, f.clone()));
+        self.send_raw(&f)
     }
 
     /// Drain the outbox and decode what the device sent.
@@ -264,6 +269,12 @@ impl Bench {
         assert!(r.contains(&DeviceMsg::Hello(Hello::OURS)), "{r:?}");
         let r = self.send(HostMsg::Configure(self.cfg));
         assert!(r.iter().any(|m| matches!(m, DeviceMsg::Credit { .. })), "{r:?}");
+    }
+
+    /// `status` with the GetStatus at sequence number `seq` (after a new session).
+    pub fn status_at(&mut self, seq: u16) -> Status {
+        self.host_seq = seq;
+        self.status()
     }
 
     pub fn status(&mut self) -> Status {

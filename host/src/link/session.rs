@@ -9,11 +9,15 @@ use gonio_shared::frame::{encode, FrameDecoder, MAX_WIRE_FRAME};
 use gonio_shared::instrument::InstrumentConfig;
 use gonio_shared::msg::caps::CHUNK_DIRECTIONS;
 use gonio_shared::msg::{
-    check_handshake, ControllerState, DeviceMsg, Direction, Fault, HandshakeError, Hello, HostMsg, Measurement,
-    PlanChunk, RefuseReason, Status,
+    check_handshake, Command, ControllerState, DeviceMsg, Direction, Fault, HandshakeError, Hello, HostMsg,
+    Measurement, PlanChunk, RefuseReason, Status,
 };
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
+
+/// Status answers in a row showing a device out of plan that grants no credit, before the scan
+/// gives up (about 10 s at the idle poll interval).
+const STARVED_STATUS_LIMIT: u32 = 25;
 
 /// Frames sent and not yet acknowledged, at most.
 const WINDOW: usize = 16;
@@ -44,6 +48,9 @@ pub enum LinkError {
     UnnamedFault { pose: String },
     #[error("{0}")]
     Sink(String),
+    /// The protocol deadlocked (a device that ran out of plan and grants no credit).
+    #[error("the scan stalled: {0}")]
+    Stalled(String),
 }
 
 impl LinkError {
@@ -117,7 +124,12 @@ pub struct Link<T: Transport> {
 
 impl<T: Transport> Link<T> {
     /// Handshake on a fresh transport: our Hello, until the device's Hello (or a clear refusal).
+    ///
+    /// The Hello carries a fresh session id and always goes as sequence number 0, the same frame
+    /// on every try: the device opens a new session for it once and treats its copies as
+    /// duplicates (see `msg::Hello`), so a late copy can never restart its count mid-session.
     pub fn connect(t: T, timing: LinkTiming) -> Result<Self, LinkError> {
+        let hello = Hello::ours(new_session_id());
         let mut link = Self {
             t,
             dec: FrameDecoder::new(),
@@ -134,9 +146,9 @@ impl<T: Transport> Link<T> {
         let start = Instant::now();
         let mut tries = 0u32;
         while start.elapsed() < timing.hello_timeout {
-            // Hello is accepted at any sequence number and restarts the device's count.
             link.inflight.clear();
-            link.send(&HostMsg::Hello(Hello::OURS))?;
+            link.tx_seq = 0;
+            link.send(&HostMsg::Hello(hello))?;
             tries += 1;
             let until = Instant::now() + timing.rto.max(Duration::from_millis(200)) * tries.min(4);
             while Instant::now() < until {
@@ -144,9 +156,13 @@ impl<T: Transport> Link<T> {
                 while let Some(m) = link.rx.pop_front() {
                     if let DeviceMsg::Hello(theirs) = m {
                         check_handshake(theirs)?;
+                        if theirs.session != hello.session {
+                            // A stale answer (to an earlier connection's Hello).
+                            continue;
+                        }
                         link.rx.clear();
-                        // The device answered, so it has our Hello: never resend it later, where
-                        // it would restart the device's sequence count mid-session.
+                        // The device answered, so it has our Hello: no need to resend it (a resent
+                        // copy would be harmless, only acknowledged and answered again).
                         link.inflight.clear();
                         return Ok(link);
                     }
@@ -168,8 +184,9 @@ impl<T: Transport> Link<T> {
         LinkError::Disconnected(e.to_string())
     }
 
-    /// Queue `msg` with the next sequence number (waits while the window is full).
-    pub fn send(&mut self, msg: &HostMsg) -> Result<(), LinkError> {
+    /// Queue `msg` with the next sequence number (waits while the window is full); returns the
+    /// sequence number it went with (named by a `Refused` answering it).
+    pub fn send(&mut self, msg: &HostMsg) -> Result<u16, LinkError> {
         while self.inflight.len() >= WINDOW {
             self.pump(Duration::from_millis(10))?;
         }
@@ -182,9 +199,15 @@ impl<T: Transport> Link<T> {
         if self.inflight.is_empty() {
             self.oldest_sent = Instant::now();
         }
-        self.inflight.push_back((self.tx_seq, frame));
-        self.tx_seq = self.tx_seq.wrapping_add(1);
-        Ok(())
+        let seq = self.tx_seq;
+        self.inflight.push_back((seq, frame));
+        self.tx_seq = seq.wrapping_add(1);
+        Ok(seq)
+    }
+
+    /// The sequence number the next frame will go with.
+    pub fn next_seq(&self) -> u16 {
+        self.tx_seq
     }
 
     pub fn window_free(&self) -> bool {
@@ -339,7 +362,9 @@ impl<T: Transport> Link<T> {
                     }
                 }
                 ControllerState::Homing if homing_sent => {}
-                _ => self.send(&HostMsg::Abort)?,
+                _ => {
+                    self.send(&HostMsg::Abort)?;
+                }
             }
             self.flush()?;
             std::thread::sleep(Duration::from_millis(20));
@@ -347,13 +372,14 @@ impl<T: Transport> Link<T> {
         // Configure: refused while a move winds down; try again until it takes.
         let mut configured = false;
         for _ in 0..200 {
-            self.send(&HostMsg::Configure(*cfg))?;
+            let cfg_seq = self.send(&HostMsg::Configure(*cfg))?;
             let until = Instant::now() + self.timing.rto * 4;
             let mut refused = None;
             while Instant::now() < until && !configured && refused.is_none() {
                 match self.next_msg(Duration::from_millis(20))? {
                     Some(DeviceMsg::Credit { next_index: 0, .. }) => configured = true,
-                    Some(DeviceMsg::Refused { reason, .. }) => refused = Some(reason),
+                    // Only the answer to this Configure (not to an earlier Abort or Home).
+                    Some(DeviceMsg::Refused { seq, reason, .. }) if seq == cfg_seq => refused = Some(reason),
                     _ => {}
                 }
             }
@@ -383,7 +409,9 @@ impl<T: Transport> Link<T> {
             match s.state {
                 ControllerState::Ready if s.homed => return Ok(s),
                 ControllerState::Fault => return Err(self.fault_error(s.last_fault, Some(s.steps))),
-                ControllerState::Idle => self.send(&HostMsg::Home)?,
+                ControllerState::Idle => {
+                    self.send(&HostMsg::Home)?;
+                }
                 _ => {}
             }
         }
@@ -432,6 +460,18 @@ impl<T: Transport> Link<T> {
                                // A status asked for after a silence: only its answer can reveal lost measurements (an
                                // unsolicited status may overtake readings that are merely still on their way).
         let mut probing = false;
+        // Sequence numbers of our Start and of the plan chunks in flight (with their first index),
+        // to match a `Refused` to the frame it answers.
+        let mut start_seq: Option<u16> = None;
+        let mut chunk_seqs: VecDeque<(u16, u32)> = VecDeque::new();
+        // Refusals of frames sent before this sequence number are stale: the plan was rewound since.
+        let mut epoch = self.next_seq();
+        // When the plan credit last grew (or was last asked for). The configuration's grant went to
+        // `prepare`: ask for the current one at once.
+        let mut last_grant = Instant::now()
+            .checked_sub(self.timing.idle)
+            .unwrap_or_else(Instant::now);
+        let mut starved_statuses = 0u32;
         loop {
             while next_send < total && self.window_free() {
                 let len = (total - next_send).min(CHUNK_DIRECTIONS as u32);
@@ -442,10 +482,14 @@ impl<T: Transport> Link<T> {
                 let dirs = plan.get(lo..lo + len as usize).unwrap_or(&[]);
                 let directions =
                     heapless::Vec::from_slice(dirs).map_err(|_| LinkError::Sink("chunk too long".into()))?;
-                self.send(&HostMsg::Plan(PlanChunk {
+                let seq = self.send(&HostMsg::Plan(PlanChunk {
                     first_index: next_send,
                     directions,
                 }))?;
+                if chunk_seqs.len() >= 2 * WINDOW {
+                    chunk_seqs.pop_front();
+                }
+                chunk_seqs.push_back((seq, next_send));
                 next_send += len;
             }
             if next_send == total && !end_sent && self.window_free() {
@@ -453,14 +497,18 @@ impl<T: Transport> Link<T> {
                 end_sent = true;
             }
             if !started && next_send > 0 && self.window_free() {
-                self.send(&HostMsg::Start)?;
+                start_seq = Some(self.send(&HostMsg::Start)?);
                 started = true;
             }
             let msg = self.next_msg(Duration::from_millis(20))?;
             let got_msg = msg.is_some();
             match msg {
                 Some(DeviceMsg::Credit { next_index, free }) => {
-                    credit_limit = credit_limit.max(next_index.saturating_add(u32::from(free)));
+                    let limit = next_index.saturating_add(u32::from(free));
+                    if limit > credit_limit {
+                        credit_limit = limit;
+                        last_grant = Instant::now();
+                    }
                 }
                 Some(DeviceMsg::Measurement(m)) => {
                     if m.seq == next_seq {
@@ -487,6 +535,28 @@ impl<T: Transport> Link<T> {
                 }
                 Some(DeviceMsg::Fault(f)) => return Err(self.stop_on_fault(Some(f), next_seq, sink)),
                 Some(DeviceMsg::Status(s)) => {
+                    // The same grant as a Credit: recovers from a lost one (see `DeviceMsg::Credit`).
+                    let limit = s.plan_next.saturating_add(u32::from(s.plan_free));
+                    if limit > credit_limit {
+                        credit_limit = limit;
+                        last_grant = Instant::now();
+                    }
+                    // Deadlock watch: the device has run out of plan (everything it took is
+                    // measured), we have sent everything it granted, and its status grants nothing
+                    // more. Never so with a working device; a bounded number of such answers in a
+                    // row is an error rather than a scan that hangs.
+                    let len = (total - next_send).min(CHUNK_DIRECTIONS as u32);
+                    let starved = len > 0
+                        && next_send + len > credit_limit
+                        && s.plan_next == next_send
+                        && s.plan_done >= s.plan_next
+                        && matches!(s.state, ControllerState::Running | ControllerState::Ready);
+                    starved_statuses = if starved { starved_statuses + 1 } else { 0 };
+                    if starved_statuses > STARVED_STATUS_LIMIT {
+                        return Err(LinkError::Stalled(format!(
+                            "the device ran out of plan at direction {next_send} of {total} and grants no credit"
+                        )));
+                    }
                     if s.state == ControllerState::Fault {
                         return Err(self.stop_on_fault(s.last_fault, next_seq, sink));
                     }
@@ -506,13 +576,44 @@ impl<T: Transport> Link<T> {
                         resend_at = Some((next_seq, Instant::now()));
                     }
                 }
-                Some(DeviceMsg::Refused { reason, .. }) => {
+                Some(DeviceMsg::Refused { seq, command, reason }) => {
                     if let RefuseReason::BadConfig(_) | RefuseReason::NotConfigured | RefuseReason::NoHandshake = reason
                     {
                         return Err(LinkError::Refused {
                             what: "a scan command",
                             reason,
                         });
+                    }
+                    let since_epoch = seq.wrapping_sub(epoch) < 0x8000;
+                    let chunk_first = chunk_seqs.iter().find(|(s, _)| *s == seq).map(|&(_, first)| first);
+                    match (command, reason, chunk_first) {
+                        // A chunk the device did not take: every later chunk in flight is refused
+                        // too (out of order). Go back to where the device stands, once.
+                        (Command::Plan, RefuseReason::OutOfOrder { expected }, Some(_))
+                            if since_epoch && expected < next_send =>
+                        {
+                            next_send = expected;
+                            epoch = self.next_seq();
+                        }
+                        (Command::Plan, RefuseReason::NoCredit, Some(first)) if since_epoch && first < next_send => {
+                            // Our idea of the credit was wrong: wait for a fresh grant.
+                            next_send = first;
+                            credit_limit = first;
+                            epoch = self.next_seq();
+                        }
+                        (Command::Start, RefuseReason::NotHomed, _) if start_seq == Some(seq) => {
+                            return Err(LinkError::Refused {
+                                what: "the scan's Start",
+                                reason,
+                            });
+                        }
+                        (Command::Start, _, _) if start_seq == Some(seq) && self.window_free() => {
+                            // E.g. a move still winding down: the status answer says when Ready
+                            // (and the Status arm above starts again).
+                            self.send(&HostMsg::GetStatus)?;
+                            self.stats.status_requests += 1;
+                        }
+                        _ => {}
                     }
                 }
                 Some(DeviceMsg::Hello(_) | DeviceMsg::Ack { .. } | DeviceMsg::Nak { .. }) | None => {}
@@ -534,15 +635,18 @@ impl<T: Transport> Link<T> {
                 self.flush()?;
                 return Ok(());
             }
+            let next_len = (total - next_send).min(CHUNK_DIRECTIONS as u32);
+            let credit_starved = next_len > 0 && next_send + next_len > credit_limit;
+            if credit_starved && last_grant.elapsed() >= self.timing.idle && self.window_free() {
+                // Waiting for room while measurements still flow (so never quiet): a `Credit` may
+                // have been lost; the status answer carries the same grant.
+                self.send(&HostMsg::GetStatus)?;
+                self.stats.status_requests += 1;
+                last_grant = Instant::now();
+            }
             if last_activity.elapsed() >= self.timing.idle && self.window_free() {
-                // Quiet: a lost Credit, Measurement or Status; ask where the device stands.
-                if next_send < total {
-                    // An empty chunk is a credit poll: the device answers with a fresh Credit.
-                    self.send(&HostMsg::Plan(PlanChunk {
-                        first_index: next_send,
-                        directions: heapless::Vec::new(),
-                    }))?;
-                }
+                // Quiet: a lost Credit, Measurement or Status; ask where the device stands. The
+                // answer carries the plan credit too (`Status::plan_free`).
                 self.send(&HostMsg::GetStatus)?;
                 self.stats.status_requests += 1;
                 probing = true;
@@ -578,4 +682,19 @@ impl<T: Transport> Link<T> {
         }
         self.fault_error(fault, status.map(|s| s.steps))
     }
+}
+
+/// A session id for one connection: differs between connections (and processes) with
+/// overwhelming probability, so the device tells a new session's Hello from a copy of the last.
+fn new_session_id() -> u32 {
+    use std::hash::{BuildHasher, Hasher};
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos())
+        .unwrap_or(0);
+    h.write_u128(now);
+    h.write_u32(std::process::id());
+    // Truncation intended: any 32 bits of the hash.
+    h.finish() as u32
 }

@@ -83,6 +83,10 @@ pub struct FaultConfig {
     pub host_to_device: bool,
     pub device_to_host: bool,
     pub seed: u64,
+    /// Drop this many `Credit` frames to the host (not counting a configuration's first grant,
+    /// `next_index` 0, so the host sees its `Configure` taken), before any other fault; counted as
+    /// dropped. Needs `device_to_host`.
+    pub drop_credits: u32,
 }
 
 impl FaultConfig {
@@ -95,14 +99,15 @@ impl FaultConfig {
         host_to_device: true,
         device_to_host: true,
         seed: 1,
+        drop_credits: 0,
     };
 }
 
 impl std::str::FromStr for FaultConfig {
     type Err = String;
 
-    /// `drop=0.05,corrupt=0.05,duplicate=0.05,delay=0.05,delay_ms=20,seed=1,dir=both` (any subset;
-    /// `dir` is `both`, `to-device` or `to-host`).
+    /// `drop=0.05,corrupt=0.05,duplicate=0.05,delay=0.05,delay_ms=20,seed=1,dir=both,drop_credits=0`
+    /// (any subset; `dir` is `both`, `to-device` or `to-host`).
     fn from_str(spec: &str) -> Result<Self, String> {
         let mut c = FaultConfig::NONE;
         for item in spec.split(',').filter(|i| !i.is_empty()) {
@@ -125,6 +130,11 @@ impl std::str::FromStr for FaultConfig {
                     c.delay_by = Duration::from_millis(ms);
                 }
                 "seed" => c.seed = value.parse().map_err(|_| format!("fault spec seed: {value:?}"))?,
+                "drop_credits" => {
+                    c.drop_credits = value
+                        .parse()
+                        .map_err(|_| format!("fault spec drop_credits: {value:?}"))?
+                }
                 "dir" => {
                     (c.host_to_device, c.device_to_host) = match value {
                         "both" => (true, true),
@@ -166,16 +176,19 @@ struct FaultLane {
     partial: Vec<u8>,
     held: VecDeque<(Instant, Vec<u8>)>,
     counts: FaultCounts,
+    /// `Credit` frames still to drop (device -> host lane only).
+    credits_to_drop: u32,
 }
 
 impl FaultLane {
-    fn new(enabled: bool, seed: u64) -> Self {
+    fn new(enabled: bool, seed: u64, credits_to_drop: u32) -> Self {
         Self {
             enabled,
             rng: ChaCha8Rng::seed_from_u64(seed),
             partial: Vec::new(),
             held: VecDeque::new(),
             counts: FaultCounts::default(),
+            credits_to_drop,
         }
     }
 
@@ -194,6 +207,11 @@ impl FaultLane {
             let mut frame = std::mem::take(&mut self.partial);
             let counts = &mut self.counts;
             counts.frames += 1;
+            if self.credits_to_drop > 0 && is_streaming_credit(&frame) {
+                self.credits_to_drop -= 1;
+                counts.dropped += 1;
+                continue;
+            }
             let r: f64 = rng.random();
             let mut edge = cfg.drop;
             if r < edge {
@@ -256,8 +274,8 @@ impl<T: Transport> FaultyTransport<T> {
     pub fn new(inner: T, cfg: FaultConfig) -> Self {
         Self {
             inner,
-            tx: FaultLane::new(cfg.host_to_device, cfg.seed),
-            rx: FaultLane::new(cfg.device_to_host, cfg.seed ^ 0x9e37_79b9_7f4a_7c15),
+            tx: FaultLane::new(cfg.host_to_device, cfg.seed, 0),
+            rx: FaultLane::new(cfg.device_to_host, cfg.seed ^ 0x9e37_79b9_7f4a_7c15, cfg.drop_credits),
             cfg,
             ready: VecDeque::new(),
             shared: SharedFaultCounts::default(),
@@ -296,6 +314,18 @@ impl<T: Transport> FaultyTransport<T> {
             self.inner.write_all(&out)
         }
     }
+}
+
+/// A device frame carrying a `Credit` other than a configuration's first (`next_index` 0).
+fn is_streaming_credit(frame: &[u8]) -> bool {
+    use gonio_shared::msg::DeviceMsg;
+    let mut dec = gonio_shared::frame::FrameDecoder::new();
+    frame.iter().any(|&b| {
+        matches!(
+            dec.push::<DeviceMsg>(b),
+            Some(Ok(f)) if matches!(f.msg, DeviceMsg::Credit { next_index, .. } if next_index > 0)
+        )
+    })
 }
 
 fn add_counts(total: &mut FaultCounts, now: &FaultCounts, before: &FaultCounts) {
@@ -417,5 +447,55 @@ mod tests {
             assert!(f.len() == 2 && f[0] == f[1], "{f:?}");
         }
         assert_eq!(run(FaultConfig::NONE).0, frames);
+    }
+
+    /// `drop_credits` drops that many streaming `Credit`s to the host and nothing else.
+    #[test]
+    fn drop_credits_drops_only_streaming_credits_to_the_host() {
+        use gonio_shared::frame::{encode, FrameDecoder, MAX_WIRE_FRAME};
+        use gonio_shared::msg::DeviceMsg;
+        let msgs = [
+            DeviceMsg::Credit {
+                next_index: 0,
+                free: 512,
+            },
+            DeviceMsg::Ack { seq: 1 },
+            DeviceMsg::Credit {
+                next_index: 8,
+                free: 504,
+            },
+            DeviceMsg::Credit {
+                next_index: 16,
+                free: 504,
+            },
+            DeviceMsg::Credit {
+                next_index: 24,
+                free: 504,
+            },
+        ];
+        let mut loop_back = Loop(VecDeque::new());
+        for (k, m) in msgs.iter().enumerate() {
+            let mut f = [0u8; MAX_WIRE_FRAME];
+            let n = encode(k as u16, m, &mut f).unwrap();
+            loop_back.0.extend(&f[..n]);
+        }
+        let cfg: FaultConfig = "drop_credits=2".parse().unwrap();
+        let mut t = FaultyTransport::new(loop_back, cfg);
+        let mut got = Vec::new();
+        let mut buf = [0u8; 64];
+        let mut dec = FrameDecoder::new();
+        loop {
+            let n = t.read(&mut buf, Duration::from_millis(1)).unwrap();
+            if n == 0 {
+                break;
+            }
+            for &b in &buf[..n] {
+                if let Some(Ok(f)) = dec.push::<DeviceMsg>(b) {
+                    got.push(f.msg);
+                }
+            }
+        }
+        assert_eq!(got, vec![msgs[0].clone(), msgs[1].clone(), msgs[4].clone()]);
+        assert_eq!(t.counts().1.dropped, 2);
     }
 }
