@@ -2,5 +2,6 @@
 //! streaming, reconstruction, rendering and reports. The `gonio` binary is a thin clap layer on top.
 
 pub mod brdf;
+pub mod encoder;
 pub mod instrument;
 pub mod render;

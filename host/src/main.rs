@@ -38,6 +38,14 @@ enum Command {
     /// Generate the project's environment maps (examples/sky.exr).
     #[command(subcommand)]
     Envmap(EnvmapCmd),
+    /// Render an encoder dataset (examples/capture.toml with random or MERL materials).
+    Dataset(gonio::encoder::cli::DatasetArgs),
+    /// Train an encoder on a dataset and write ONNX (needs `--features train`).
+    Train(gonio::encoder::cli::TrainArgs),
+    /// Estimate BRDF parameters from one photo of the sample (examples/capture.toml).
+    Estimate(gonio::encoder::cli::EstimateArgs),
+    /// An encoder's accuracy on a dataset's test images, across light intensities.
+    EncoderReport(gonio::encoder::cli::ReportArgs),
 }
 
 #[derive(Subcommand)]
@@ -85,6 +93,10 @@ fn run(cli: Cli) -> Result<()> {
         Command::Render(args) => gonio::render::cli::run_render(args),
         Command::Compare(args) => gonio::render::cli::run_compare(args),
         Command::Envmap(cmd) => gonio::render::cli::run_envmap(cmd),
+        Command::Dataset(args) => gonio::encoder::cli::run_dataset(args),
+        Command::Train(args) => gonio::encoder::cli::run_train(args),
+        Command::Estimate(args) => gonio::encoder::cli::run_estimate(args),
+        Command::EncoderReport(args) => gonio::encoder::cli::run_report(args),
         Command::Protocol => {
             use gonio_shared::frame::{MAX_PAYLOAD, MAX_WIRE_FRAME};
             use gonio_shared::msg::{caps, PROTOCOL_VERSION, SCHEMA_HASH};
