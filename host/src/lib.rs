@@ -3,5 +3,8 @@
 
 pub mod brdf;
 pub mod encoder;
+pub mod fsio;
 pub mod instrument;
+pub mod plan;
+pub mod plot;
 pub mod render;

@@ -14,7 +14,6 @@ use super::half_diff::{from_half_diff, to_half_diff};
 use super::{BrdfError, Material};
 use glam::DVec3;
 use std::f64::consts::{FRAC_PI_2, PI};
-use std::io::Write;
 use std::path::Path;
 
 pub const N_THETA_H: usize = 90;
@@ -109,22 +108,7 @@ impl MerlTable {
     /// Write to `path` through a temporary file in the same folder and a rename, so a reader never
     /// sees a half-written table.
     pub fn write(&self, path: &Path) -> Result<(), BrdfError> {
-        let file_name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let tmp = path.with_file_name(format!(".{file_name}.tmp-{}", std::process::id()));
-        let result = std::fs::File::create(&tmp)
-            .and_then(|mut f| {
-                f.write_all(&self.to_bytes())?;
-                f.sync_all()
-            })
-            .and_then(|()| std::fs::rename(&tmp, path));
-        if let Err(e) = result {
-            let _ = std::fs::remove_file(&tmp);
-            return Err(BrdfError::io(path, e));
-        }
-        Ok(())
+        crate::fsio::write_bytes_atomically(path, &self.to_bytes()).map_err(|e| BrdfError::io(path, e))
     }
 
     /// Tabulate any material at the bin centres (phi_h = 0: the table is isotropic). Pairs whose

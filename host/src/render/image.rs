@@ -4,7 +4,7 @@
 
 use super::RenderError;
 use glam::DVec3;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct Image {
@@ -60,19 +60,11 @@ impl Image {
     /// Write by extension: EXR keeps the linear values, PNG is tone-mapped (see `tone_map`).
     pub fn write(&self, path: &Path) -> Result<(), RenderError> {
         let format = ImageFormat::from_path(path)?;
-        let tmp = temp_name(path);
-        let written = match format {
-            ImageFormat::Exr => self.write_exr(&tmp),
-            ImageFormat::Png => self.write_png(&tmp),
-        };
-        if let Err(e) = written {
-            let _ = std::fs::remove_file(&tmp);
-            return Err(RenderError::image(path, e));
-        }
-        std::fs::rename(&tmp, path).map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            RenderError::image(path, e)
+        crate::fsio::write_atomically(path, |tmp| match format {
+            ImageFormat::Exr => self.write_exr(tmp),
+            ImageFormat::Png => self.write_png(tmp),
         })
+        .map_err(|e| RenderError::image(path, e))
     }
 
     fn write_exr(&self, tmp: &Path) -> Result<(), String> {
@@ -137,15 +129,8 @@ pub fn srgb_to_linear(v: f64) -> f64 {
 
 /// Write display-ready 8-bit RGB bytes (RGBRGB..., row 0 first) as a PNG, through a temporary name.
 pub fn write_rgb8_png(path: &Path, width: usize, height: usize, bytes: Vec<u8>) -> Result<(), RenderError> {
-    let tmp = temp_name(path);
-    if let Err(e) = save_rgb8_png(&tmp, width, height, bytes) {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(RenderError::image(path, e));
-    }
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        RenderError::image(path, e)
-    })
+    crate::fsio::write_atomically(path, |tmp| save_rgb8_png(tmp, width, height, bytes))
+        .map_err(|e| RenderError::image(path, e))
 }
 
 fn save_rgb8_png(path: &Path, width: usize, height: usize, bytes: Vec<u8>) -> Result<(), String> {
@@ -157,14 +142,6 @@ fn save_rgb8_png(path: &Path, width: usize, height: usize, bytes: Vec<u8>) -> Re
 }
 
 /// `out.exr` -> `.out.exr.tmp-PID` in the same directory, so the final rename stays on one filesystem.
-fn temp_name(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
-}
-
 fn read_exr(path: &Path) -> Result<Image, RenderError> {
     use exr::prelude::{read_first_rgba_layer_from_file, Vec2};
     let read = read_first_rgba_layer_from_file(
