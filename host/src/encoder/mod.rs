@@ -179,7 +179,12 @@ fn load_png(path: &Path) -> Result<Image, EncoderError> {
                 "grayscale image: the encoder needs an RGB or RGBA photo",
             ))
         }
-        other => return Err(EncoderError::image(path, format!("unsupported PNG colour type {other:?}"))),
+        other => {
+            return Err(EncoderError::image(
+                path,
+                format!("unsupported PNG colour type {other:?}"),
+            ))
+        }
     }
     // 32-bit float keeps 16-bit PNGs at full precision; alpha is dropped (the sphere is opaque).
     let rgb = decoded.to_rgb32f();

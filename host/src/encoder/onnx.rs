@@ -173,11 +173,23 @@ impl Weights {
                 &format!("{p}.bn.out"),
                 vec![float("epsilon", BN_EPS as f32)],
             ));
-            nodes.push(node("Relu", &format!("{p}.relu"), &[&format!("{p}.bn.out")], &format!("{p}.out"), vec![]));
+            nodes.push(node(
+                "Relu",
+                &format!("{p}.relu"),
+                &[&format!("{p}.bn.out")],
+                &format!("{p}.out"),
+                vec![],
+            ));
             x = format!("{p}.out");
         }
         nodes.push(node("GlobalAveragePool", "pool", &[&x], "pool.out", vec![]));
-        nodes.push(node("Flatten", "flatten", &["pool.out"], "features", vec![int("axis", 1)]));
+        nodes.push(node(
+            "Flatten",
+            "flatten",
+            &["pool.out"],
+            "features",
+            vec![int("axis", 1)],
+        ));
         init.push(f32_tensor("fc.weight", &[k, FEATURES], self.fc_weight.clone()));
         init.push(f32_tensor("fc.bias", &[k], self.fc_bias.clone()));
         nodes.push(node(
@@ -216,13 +228,21 @@ impl Weights {
             initializer: init,
             input: vec![value_info(
                 INPUT_NAME,
-                &[batch.clone(), D::DimValue(CHANNELS as i64), D::DimValue(s), D::DimValue(s)],
+                &[
+                    batch.clone(),
+                    D::DimValue(CHANNELS as i64),
+                    D::DimValue(s),
+                    D::DimValue(s),
+                ],
             )],
             output: vec![value_info(OUTPUT_NAME, &[batch, D::DimValue(k as i64)])],
             ..Default::default()
         };
         let names: Vec<&str> = self.kind.outputs().iter().map(|p| p.name).collect();
-        let meta = |k: &str, v: String| pb::StringStringEntryProto { key: k.into(), value: v };
+        let meta = |k: &str, v: String| pb::StringStringEntryProto {
+            key: k.into(),
+            value: v,
+        };
         let model = pb::ModelProto {
             // IR version 7 is the one that goes with opset 13.
             ir_version: 7,

@@ -48,7 +48,8 @@ pub fn predict(encoder: &Encoder, data: &Loaded, scale: f64, mode: Photo) -> Res
         .iter()
         .zip(&data.samples)
         .map(|(img, s)| {
-            let input = preprocess(&photo(img, scale, mode)).map_err(|e| EncoderError::dataset(&data.dir.join(&s.file), e))?;
+            let input =
+                preprocess(&photo(img, scale, mode)).map_err(|e| EncoderError::dataset(&data.dir.join(&s.file), e))?;
             debug_assert_eq!(input.len(), INPUT_LEN);
             encoder.estimate(&input)
         })
@@ -106,8 +107,16 @@ pub fn report(encoder: &Encoder, data: &Loaded, mode: Photo) -> Result<Report, E
         lines.push(format!("{:<8} {m:>9.4} {x:>9.4}", r.name));
     }
     lines.push(String::new());
-    let header: Vec<String> = outputs.iter().map(|r| format!("{:>12}", format!("MAE {}", r.name))).collect();
-    lines.push(format!("{:<10} {}  {:>14}", "intensity", header.join(" "), "vs x1 (last)"));
+    let header: Vec<String> = outputs
+        .iter()
+        .map(|r| format!("{:>12}", format!("MAE {}", r.name)))
+        .collect();
+    lines.push(format!(
+        "{:<10} {}  {:>14}",
+        "intensity",
+        header.join(" "),
+        "vs x1 (last)"
+    ));
     for &scale in &SWEEP {
         let pred = if scale == 1.0 {
             nominal.clone()
@@ -117,7 +126,11 @@ pub fn report(encoder: &Encoder, data: &Loaded, mode: Photo) -> Result<Report, E
         let (m, _) = errors(&pred, &truth);
         let cols: Vec<String> = m.iter().map(|v| format!("{v:>12.4}")).collect();
         let last = m.len() - 1;
-        lines.push(format!("x{scale:<9} {}  {:>+14.4}", cols.join(" "), m[last] - mae[last]));
+        lines.push(format!(
+            "x{scale:<9} {}  {:>+14.4}",
+            cols.join(" "),
+            m[last] - mae[last]
+        ));
     }
     let rows = data
         .samples
@@ -138,8 +151,39 @@ pub fn csv(kind: super::ModelKind, rows: &[(String, String, Vec<f64>, Vec<f64>)]
         .collect();
     let mut text = format!("file,spec,{}\n", names.join(","));
     for (file, spec, t, p) in rows {
-        let vals: Vec<String> = t.iter().zip(p).flat_map(|(a, b)| [a.to_string(), b.to_string()]).collect();
+        let vals: Vec<String> = t
+            .iter()
+            .zip(p)
+            .flat_map(|(a, b)| [a.to_string(), b.to_string()])
+            .collect();
         text += &format!("{file},\"{spec}\",{}\n", vals.join(","));
     }
     text
+}
+
+/// Predicted against true alpha (the last output of both models), with the y = x line.
+pub fn chart(
+    kind: super::ModelKind,
+    rows: &[(String, String, Vec<f64>, Vec<f64>)],
+    data: &std::path::Path,
+) -> crate::plot::Chart {
+    use crate::plot::{Chart, Mark, Series};
+    let j = kind.outputs().len() - 1;
+    let points: Vec<(f64, f64)> = rows.iter().map(|(_, _, t, p)| (t[j], p[j])).collect();
+    let name = data
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let mut chart = Chart::new(
+        format!(
+            "{} encoder: predicted vs true alpha ({name}, {} images)",
+            kind.name(),
+            rows.len()
+        ),
+        "true alpha",
+        "predicted alpha",
+    )
+    .with_series(Series::new("test images", points, Mark::Points));
+    chart.diagonal = true;
+    chart
 }

@@ -18,7 +18,11 @@ fn preprocessing_ignores_light_intensity() {
             *p *= scale;
         }
         let other = preprocess(&scaled).expect("preprocess");
-        let worst = base.iter().zip(&other).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+        let worst = base
+            .iter()
+            .zip(&other)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
         assert!(worst < 1e-5, "x{scale}: inputs differ by {worst}");
     }
 }
@@ -107,7 +111,13 @@ fn onnx_export_round_trips_and_runs_in_tract() {
         let input = preprocess(&sphere_photo("ward:rho_d=0.5,alpha=0.2")).expect("preprocess");
         let out = enc.estimate(&input).expect("run");
         for (r, v) in kind.outputs().iter().zip(&out) {
-            assert!(*v >= r.lo * 0.999 && *v <= r.hi * 1.001, "{} = {v} outside [{}, {}]", r.name, r.lo, r.hi);
+            assert!(
+                *v >= r.lo * 0.999 && *v <= r.hi * 1.001,
+                "{} = {v} outside [{}, {}]",
+                r.name,
+                r.lo,
+                r.hi
+            );
         }
     }
 }

@@ -210,6 +210,15 @@ pub fn train(
     log: &mut dyn FnMut(&str),
 ) -> Result<(Net, TrainLog), EncoderError> {
     let kind = data.kind;
+    if let Some(v) = val {
+        if v.kind != kind {
+            return Err(EncoderError::Model(format!(
+                "the validation data are {}, the training data {}",
+                v.kind.name(),
+                kind.name()
+            )));
+        }
+    }
     let varmap = init_varmap(kind, init, cfg.seed)?;
     let net = Net::new(kind, &varmap)?;
     let trainable: Vec<Var> = {
@@ -316,7 +325,11 @@ pub fn train(
         );
         if let Some(v) = val {
             let mae = mae(&net, v)?;
-            let cols: Vec<String> = outputs.iter().zip(&mae).map(|(r, m)| format!("{} {m:.4}", r.name)).collect();
+            let cols: Vec<String> = outputs
+                .iter()
+                .zip(&mae)
+                .map(|(r, m)| format!("{} {m:.4}", r.name))
+                .collect();
             line += &format!("  val MAE {}", cols.join("  "));
         }
         log(&line);
@@ -333,6 +346,13 @@ pub fn train(
 
 /// Mean absolute error per output of `net` on `data` (candle, inference mode).
 pub fn mae(net: &Net, data: &Loaded) -> Result<Vec<f64>, EncoderError> {
+    if data.kind != net.kind {
+        return Err(EncoderError::Model(format!(
+            "the data are {}, the network {}",
+            data.kind.name(),
+            net.kind.name()
+        )));
+    }
     let pred = net.predict(&data.inputs(1.0)?)?;
     let k = net.kind.outputs().len();
     let mut sum = vec![0.0; k];
@@ -342,17 +362,6 @@ pub fn mae(net: &Net, data: &Loaded) -> Result<Vec<f64>, EncoderError> {
         }
     }
     Ok(sum.into_iter().map(|s| s / pred.len().max(1) as f64).collect())
-}
-
-/// Write `bytes` to `path` through a temporary name.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), EncoderError> {
-    let tmp = path.with_extension("onnx.tmp");
-    std::fs::write(&tmp, bytes)
-        .and_then(|_| std::fs::rename(&tmp, path))
-        .map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            EncoderError::Model(format!("{}: {e}", path.display()))
-        })
 }
 
 /// Load a dataset's training rows (everything but `split = test`).
