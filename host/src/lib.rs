@@ -2,6 +2,7 @@
 //! streaming, reconstruction, rendering and reports. The `gonio` binary is a thin clap layer on top.
 
 pub mod brdf;
+pub mod encoder;
 pub mod fsio;
 pub mod instrument;
 pub mod journal;

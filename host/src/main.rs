@@ -48,6 +48,14 @@ enum Command {
     Sim(measure_cli::SimArgs),
     /// Stream a plan file to a gonio (or the virtual one), journal and collect the measurements.
     Measure(measure_cli::MeasureArgs),
+    /// Render an encoder dataset (examples/capture.toml with random or MERL materials).
+    Dataset(gonio::encoder::cli::DatasetArgs),
+    /// Train an encoder on a dataset and write ONNX (needs `--features train`).
+    Train(gonio::encoder::cli::TrainArgs),
+    /// Estimate BRDF parameters from one photo of the sample (examples/capture.toml).
+    Estimate(gonio::encoder::cli::EstimateArgs),
+    /// An encoder's accuracy on a dataset's test images, across light intensities.
+    EncoderReport(gonio::encoder::cli::ReportArgs),
 }
 
 #[derive(Subcommand)]
@@ -99,6 +107,10 @@ fn run(cli: Cli) -> Result<()> {
         Command::PlanReport(args) => gonio::plan::cli::run_plan_report(args),
         Command::Sim(args) => measure_cli::run_sim(args),
         Command::Measure(args) => measure_cli::run_measure(args),
+        Command::Dataset(args) => gonio::encoder::cli::run_dataset(args),
+        Command::Train(args) => gonio::encoder::cli::run_train(args),
+        Command::Estimate(args) => gonio::encoder::cli::run_estimate(args),
+        Command::EncoderReport(args) => gonio::encoder::cli::run_report(args),
         Command::Protocol => {
             use gonio_shared::frame::{MAX_PAYLOAD, MAX_WIRE_FRAME};
             use gonio_shared::msg::{caps, PROTOCOL_VERSION, SCHEMA_HASH};

@@ -1,0 +1,219 @@
+//! `gonio dataset | train | estimate | encoder-report`.
+
+use super::infer::Encoder;
+use super::report::{self, Photo};
+use super::{dataset, load_photo, preprocess, ModelKind};
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use std::path::{Path, PathBuf};
+
+#[derive(Args)]
+pub struct DatasetArgs {
+    /// Which model's parameters to draw and label.
+    #[arg(long, value_enum)]
+    pub model: ModelKind,
+    /// Number of synthetic images (ignored with --merl: one image per bundled material).
+    #[arg(long, default_value_t = 100)]
+    pub count: usize,
+    /// Render the 90 bundled MERL fits with their fitted GGX alpha (15 held out as `test`).
+    #[arg(long)]
+    pub merl: bool,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Output folder (created; labels.csv is written last).
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+#[derive(Args)]
+pub struct TrainArgs {
+    /// Dataset folder (`gonio dataset`); rows with split = test are left out.
+    pub data: PathBuf,
+    /// The ONNX file to write.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    #[arg(long, default_value_t = 30)]
+    pub epochs: usize,
+    #[arg(long, default_value_t = 32)]
+    pub batch: usize,
+    /// Peak learning rate (AdamW, cosine decay to 0).
+    #[arg(long, default_value_t = 3e-3)]
+    pub lr: f64,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Start from this model (fine-tuning) instead of a fresh initialisation.
+    #[arg(long)]
+    pub init: Option<PathBuf>,
+    /// Print the MAE on this dataset's test rows (or all rows) after every epoch.
+    #[arg(long)]
+    pub val: Option<PathBuf>,
+}
+
+#[derive(Args)]
+pub struct EstimateArgs {
+    /// A photo following examples/capture.toml: PNG (8/16-bit RGB/RGBA) or EXR, any size.
+    pub image: PathBuf,
+    /// Which shipped model to run.
+    #[arg(long, value_enum, default_value = "ggx")]
+    pub model: ModelKind,
+    /// Run this ONNX file instead of a shipped model.
+    #[arg(long)]
+    pub model_file: Option<PathBuf>,
+    /// Print a JSON object: {"model": ..., "<param>": value, ...}.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Args)]
+pub struct ReportArgs {
+    /// Dataset folder; its `test` rows if it has any, else all rows.
+    pub data: PathBuf,
+    /// Which shipped model to evaluate.
+    #[arg(long, value_enum, default_value = "ggx")]
+    pub model: ModelKind,
+    #[arg(long)]
+    pub model_file: Option<PathBuf>,
+    /// Feed the network 8-bit PNG photos (auto-exposed at x1, clipped and quantised) instead of EXR.
+    #[arg(long)]
+    pub png: bool,
+    /// Write the per-image predictions here.
+    #[arg(long)]
+    pub csv: Option<PathBuf>,
+    /// Plot predicted against true alpha (PNG), like the paper's Fig. 5.
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+}
+
+fn load_encoder(model: ModelKind, file: Option<&Path>) -> Result<Encoder> {
+    Ok(match file {
+        Some(path) => Encoder::from_file(path)?,
+        None => Encoder::shipped(model).with_context(|| format!("the shipped {} model", model.name()))?,
+    })
+}
+
+pub fn run_dataset(args: DatasetArgs) -> Result<()> {
+    if !args.merl && args.count == 0 {
+        bail!("--count must be at least 1");
+    }
+    let start = std::time::Instant::now();
+    let samples = dataset::generate(args.model, args.count, args.merl, args.seed, &args.output)?;
+    println!(
+        "{} images in {} ({:.1} s)",
+        samples.len(),
+        args.output.display(),
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+/// The test rows of a dataset, or all of them when it has no `test` split.
+pub fn load_eval(dir: &Path) -> Result<dataset::Loaded> {
+    match dataset::load(dir, &|s| s == "test") {
+        Ok(d) => Ok(d),
+        Err(_) => Ok(dataset::load(dir, &|_| true)?),
+    }
+}
+
+#[cfg(feature = "train")]
+pub fn run_train(args: TrainArgs) -> Result<()> {
+    use super::train;
+    let data = train::load_train(&args.data)?;
+    let init = match &args.init {
+        Some(p) => {
+            let bytes = std::fs::read(p).with_context(|| format!("{}", p.display()))?;
+            Some(super::onnx::Weights::from_onnx(&bytes).with_context(|| format!("{}", p.display()))?)
+        }
+        None => None,
+    };
+    let val = args.val.as_deref().map(load_eval).transpose()?;
+    if args.epochs == 0 || args.batch < 2 {
+        bail!("--epochs must be >= 1 and --batch >= 2");
+    }
+    println!(
+        "training {} on {} images of {} (epochs {}, batch {}, lr {}, seed {})",
+        data.kind.name(),
+        data.samples.len(),
+        args.data.display(),
+        args.epochs,
+        args.batch,
+        args.lr,
+        args.seed
+    );
+    let cfg = train::TrainConfig {
+        epochs: args.epochs,
+        batch: args.batch,
+        lr: args.lr,
+        seed: args.seed,
+        max_steps: None,
+    };
+    let (net, log) = train::train(&data, init.as_ref(), &cfg, val.as_ref(), &mut |l| println!("{l}"))?;
+    let doc = format!(
+        "gonio encoder ({}), trained by `gonio train {}` (epochs {}, batch {}, lr {}, seed {}{})",
+        data.kind.name(),
+        args.data.display(),
+        args.epochs,
+        args.batch,
+        args.lr,
+        args.seed,
+        args.init
+            .as_ref()
+            .map(|p| format!(", init {}", p.display()))
+            .unwrap_or_default()
+    );
+    let bytes = net.weights()?.to_onnx(&doc).map_err(anyhow::Error::msg)?;
+    crate::fsio::write_bytes_atomically(&args.output, &bytes).with_context(|| format!("{}", args.output.display()))?;
+    println!(
+        "wrote {} ({} bytes); training wall time {:.0} s for {} images ({:.0} img/s)",
+        args.output.display(),
+        bytes.len(),
+        log.seconds,
+        log.images,
+        log.images as f64 / log.seconds.max(1e-9)
+    );
+    Ok(())
+}
+
+#[cfg(not(feature = "train"))]
+pub fn run_train(_args: TrainArgs) -> Result<()> {
+    bail!("this gonio was built without training: rebuild with `cargo run --release -p gonio --features train -- train ...`")
+}
+
+pub fn run_estimate(args: EstimateArgs) -> Result<()> {
+    let photo = load_photo(&args.image)?;
+    let input = preprocess(&photo).map_err(|e| anyhow::anyhow!("{}: {e}", args.image.display()))?;
+    let encoder = load_encoder(args.model, args.model_file.as_deref())?;
+    let values = encoder.estimate(&input)?;
+    let kind = encoder.kind;
+    if args.json {
+        let mut obj = serde_json::Map::new();
+        obj.insert("model".into(), kind.name().into());
+        for (r, v) in kind.outputs().iter().zip(&values) {
+            obj.insert(r.name.into(), serde_json::json!(v));
+        }
+        println!("{}", serde_json::Value::Object(obj));
+    } else {
+        println!("{}", kind.spec(&values));
+    }
+    Ok(())
+}
+
+pub fn run_report(args: ReportArgs) -> Result<()> {
+    let encoder = load_encoder(args.model, args.model_file.as_deref())?;
+    let data = load_eval(&args.data)?;
+    let mode = if args.png { Photo::Png8 } else { Photo::Linear };
+    let rep = report::report(&encoder, &data, mode)?;
+    for l in &rep.lines {
+        println!("{l}");
+    }
+    if let Some(path) = &args.csv {
+        crate::fsio::write_bytes_atomically(path, report::csv(encoder.kind, &rep.rows).as_bytes())
+            .with_context(|| format!("{}", path.display()))?;
+        println!("wrote {}", path.display());
+    }
+    if let Some(path) = &args.plot {
+        crate::plot::write_png(&report::chart(encoder.kind, &rep.rows, &args.data), path)
+            .with_context(|| format!("{}", path.display()))?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,162 @@
+use super::onnx::{Block, Weights, BLOCKS, FEATURES};
+use super::*;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+fn sphere_photo(spec: &str) -> Image {
+    dataset::render_capture(spec, 1.0).expect("render")
+}
+
+#[test]
+fn preprocessing_ignores_light_intensity() {
+    let img = sphere_photo("ward:rho_d=0.3,alpha=0.1");
+    let base = preprocess(&img).expect("preprocess");
+    // Factors that are not powers of two, so rounding is really exercised.
+    for scale in [0.25 * 1.1, 0.7, 3.3, 4.0 * 0.97] {
+        let mut scaled = img.clone();
+        for p in &mut scaled.pixels {
+            *p *= scale;
+        }
+        let other = preprocess(&scaled).expect("preprocess");
+        let worst = base
+            .iter()
+            .zip(&other)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(worst < 1e-5, "x{scale}: inputs differ by {worst}");
+    }
+}
+
+#[test]
+fn preprocessing_rejects_black_and_nan_images() {
+    let black = Image::new(16, 16);
+    assert!(preprocess(&black).unwrap_err().contains("black"));
+    let mut nan = sphere_photo("ward:rho_d=0.3,alpha=0.1");
+    nan.pixels[7] = glam::DVec3::splat(f64::NAN);
+    assert!(preprocess(&nan).unwrap_err().contains("NaN"));
+}
+
+#[test]
+fn resampling_is_the_box_average_and_crops_to_a_square() {
+    let mut img = Image::new(2 * INPUT_SIZE + 6, 2 * INPUT_SIZE);
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    for p in &mut img.pixels {
+        *p = glam::DVec3::splat(rng.random::<f64>());
+    }
+    let small = resample_square(&img, INPUT_SIZE);
+    for (ox, oy) in [(0, 0), (5, 9), (INPUT_SIZE - 1, INPUT_SIZE - 1)] {
+        let mut sum = glam::DVec3::ZERO;
+        for dy in 0..2 {
+            for dx in 0..2 {
+                sum += img.get(3 + 2 * ox + dx, 2 * oy + dy);
+            }
+        }
+        assert!((small.get(ox, oy) - sum / 4.0).length() < 1e-12, "pixel ({ox}, {oy})");
+    }
+}
+
+#[test]
+fn vertical_flip_is_an_involution_and_matches_the_mirrored_render() {
+    let img = sphere_photo("ggx:alpha=0.2,diffuse=0.2/0.1/0.05");
+    // A ramp that differs in every row shows the flip moves rows and undoes itself.
+    let ramp: Vec<f32> = (0..INPUT_LEN).map(|i| i as f32).collect();
+    let flipped = flip_vertical(&ramp);
+    assert_eq!(
+        flipped[0],
+        ramp[(INPUT_SIZE - 1) * INPUT_SIZE],
+        "row 0 comes from the last row"
+    );
+    assert_eq!(flip_vertical(&flipped), ramp);
+    let x = preprocess(&img).expect("preprocess");
+    let f = flip_vertical(&x);
+    // The capture light lies in y = 0, so the flipped photo is the photo itself (up to rendering noise).
+    let worst = x.iter().zip(&f).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    assert!(worst < 1e-3, "top and bottom differ by {worst}");
+}
+
+#[test]
+fn parameter_ranges_round_trip() {
+    for kind in [ModelKind::Ward, ModelKind::Ggx] {
+        for r in kind.outputs() {
+            for s in [0.0, 0.3, 1.0] {
+                assert!((r.to_unit(r.from_unit(s)) - s).abs() < 1e-12, "{} {s}", r.name);
+            }
+        }
+    }
+    assert_eq!(ModelKind::Ward.spec(&[0.25, 0.1]), "ward:rho_d=0.2500,alpha=0.1000");
+}
+
+fn random_weights(kind: ModelKind, seed: u64) -> Weights {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut v = |n: usize, lo: f32, hi: f32| (0..n).map(|_| rng.random_range(lo..hi)).collect::<Vec<f32>>();
+    let k = kind.outputs().len();
+    Weights {
+        kind,
+        blocks: BLOCKS
+            .iter()
+            .map(|&(cin, cout, _)| Block {
+                conv: v(cout * cin * 9, -0.3, 0.3),
+                bn_weight: v(cout, 0.5, 1.5),
+                bn_bias: v(cout, -0.1, 0.1),
+                bn_mean: v(cout, -0.1, 0.1),
+                bn_var: v(cout, 0.5, 2.0),
+            })
+            .collect(),
+        fc_weight: v(k * FEATURES, -0.1, 0.1),
+        fc_bias: v(k, -0.1, 0.1),
+    }
+}
+
+#[test]
+fn onnx_export_round_trips_and_runs_in_tract() {
+    for kind in [ModelKind::Ward, ModelKind::Ggx] {
+        let w = random_weights(kind, 11);
+        let bytes = w.to_onnx("test").expect("export");
+        assert_eq!(Weights::from_onnx(&bytes).expect("read back"), w);
+        let enc = infer::Encoder::from_bytes(&bytes).expect("tract loads it");
+        assert_eq!(enc.kind, kind);
+        let input = preprocess(&sphere_photo("ward:rho_d=0.5,alpha=0.2")).expect("preprocess");
+        let out = enc.estimate(&input).expect("run");
+        for (r, v) in kind.outputs().iter().zip(&out) {
+            assert!(
+                *v >= r.lo * 0.999 && *v <= r.hi * 1.001,
+                "{} = {v} outside [{}, {}]",
+                r.name,
+                r.lo,
+                r.hi
+            );
+        }
+    }
+}
+
+#[test]
+fn bad_model_bytes_are_clear_errors() {
+    let err = infer::Encoder::from_bytes(b"not a model").err().expect("rejected");
+    assert!(err.to_string().contains("ONNX"), "{err}");
+    // A valid ONNX file without our metadata.
+    let mut w = random_weights(ModelKind::Ggx, 1).to_onnx("x").expect("export");
+    let proto = <tract_onnx::pb::ModelProto as prost::Message>::decode(&w[..]).expect("decode");
+    let mut stripped = proto.clone();
+    stripped.metadata_props.clear();
+    w = prost::Message::encode_to_vec(&stripped);
+    let err = infer::Encoder::from_bytes(&w).err().expect("rejected");
+    assert!(err.to_string().contains("gonio.model"), "{err}");
+}
+
+#[test]
+fn datasets_are_written_and_read_back() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let samples = dataset::generate(ModelKind::Ward, 3, false, 5, dir.path()).expect("generate");
+    let again = dataset::generate(ModelKind::Ward, 3, false, 5, &dir.path().join("again")).expect("generate");
+    assert_eq!(samples, again, "the seed fixes the dataset");
+    let loaded = dataset::load(dir.path(), &|_| true).expect("load");
+    assert_eq!(loaded.kind, ModelKind::Ward);
+    assert_eq!(loaded.samples, samples);
+    assert_eq!(loaded.inputs(1.0).expect("inputs").len(), 3 * INPUT_LEN);
+    for s in &samples {
+        assert!((0.05..0.95).contains(&s.params[0]) && (0.02..0.5).contains(&s.params[1]));
+        assert!((dataset::INTENSITY_RANGE.0..=dataset::INTENSITY_RANGE.1).contains(&s.intensity));
+    }
+    let missing = dataset::load(&dir.path().join("nope"), &|_| true).err().expect("error");
+    assert!(missing.to_string().contains("labels.csv"), "{missing}");
+}

@@ -1,0 +1,370 @@
+//! Training (cargo feature `train`): the encoder in candle (CPU), AdamW with cosine decay, and the
+//! export to ONNX through `onnx::Weights`. Weights start from our own seeded initialisation (candle's
+//! CPU initialisers draw from an unseeded generator), so a run with the same seed, data and thread
+//! count reproduces the same model.
+
+use super::dataset::{self, Loaded};
+use super::onnx::{Block, RangeMap, Weights, BLOCKS, BN_EPS, FEATURES};
+use super::{flip_vertical, EncoderError, ModelKind, INPUT_LEN, INPUT_SIZE};
+use candle_core::{DType, Device, Tensor, Var, D};
+use candle_nn::{BatchNorm, Conv2d, Conv2dConfig, Linear, ModuleT, Optimizer, VarBuilder, VarMap};
+use rand::seq::SliceRandom;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use std::path::Path;
+use std::time::Instant;
+
+fn ce(e: candle_core::Error) -> EncoderError {
+    EncoderError::Model(format!("candle: {e}"))
+}
+
+/// The network in candle; same layers and names as the ONNX graph.
+pub struct Net {
+    pub kind: ModelKind,
+    blocks: Vec<(Conv2d, BatchNorm)>,
+    fc: Linear,
+    map: [Tensor; 6],
+}
+
+impl Net {
+    /// Build on `varmap`, whose variables must already be set (`init_varmap`).
+    pub fn new(kind: ModelKind, varmap: &VarMap) -> Result<Self, EncoderError> {
+        let dev = Device::Cpu;
+        let vb = VarBuilder::from_varmap(varmap, DType::F32, &dev);
+        let mut blocks = Vec::new();
+        for (i, &(cin, cout, stride)) in BLOCKS.iter().enumerate() {
+            let p = vb.pp(format!("b{i}"));
+            let cfg = Conv2dConfig {
+                padding: 1,
+                stride,
+                ..Default::default()
+            };
+            let conv = candle_nn::conv2d_no_bias(cin, cout, 3, cfg, p.pp("conv")).map_err(ce)?;
+            let bn = candle_nn::batch_norm(cout, BN_EPS, p.pp("bn")).map_err(ce)?;
+            blocks.push((conv, bn));
+        }
+        let k = kind.outputs().len();
+        let fc = candle_nn::linear(FEATURES, k, vb.pp("fc")).map_err(ce)?;
+        let m = RangeMap::of(kind);
+        let t = |v: Vec<f32>| Tensor::from_vec(v, (1, k), &dev).map_err(ce);
+        let map = [
+            t(m.lin_scale)?,
+            t(m.lin_off)?,
+            t(m.lin_mask)?,
+            t(m.log_scale)?,
+            t(m.log_off)?,
+            t(m.log_mask)?,
+        ];
+        Ok(Self { kind, blocks, fc, map })
+    }
+
+    /// Sigmoid outputs (N, k) of inputs (N, 3, 64, 64).
+    pub fn unit(&self, x: &Tensor, train: bool) -> candle_core::Result<Tensor> {
+        let mut x = x.clone();
+        for (conv, bn) in &self.blocks {
+            x = bn.forward_t(&conv.forward_t(&x, train)?, train)?.relu()?;
+        }
+        let pooled = x.mean(D::Minus1)?.mean(D::Minus1)?;
+        candle_nn::ops::sigmoid(&self.fc.forward_t(&pooled, train)?)
+    }
+
+    /// Physical parameters (N, k): the same mapping as the ONNX graph.
+    pub fn params_of_unit(&self, s: &Tensor) -> candle_core::Result<Tensor> {
+        let [ls, lo, lm, gs, go, gm] = &self.map;
+        let lin = s.broadcast_mul(ls)?.broadcast_add(lo)?.broadcast_mul(lm)?;
+        let log = s.broadcast_mul(gs)?.broadcast_add(go)?.exp()?.broadcast_mul(gm)?;
+        lin + log
+    }
+
+    /// Inference-mode parameters of preprocessed inputs (INPUT_LEN floats each), in chunks.
+    pub fn predict(&self, inputs: &[f32]) -> Result<Vec<Vec<f32>>, EncoderError> {
+        let mut out = Vec::new();
+        for chunk in inputs.chunks(256 * INPUT_LEN) {
+            let n = chunk.len() / INPUT_LEN;
+            let x = Tensor::from_slice(chunk, (n, 3, INPUT_SIZE, INPUT_SIZE), &Device::Cpu).map_err(ce)?;
+            let p = self
+                .unit(&x, false)
+                .and_then(|s| self.params_of_unit(&s))
+                .and_then(|p| p.to_vec2::<f32>())
+                .map_err(ce)?;
+            out.extend(p);
+        }
+        Ok(out)
+    }
+
+    /// The weights as plain arrays (batch-norm running statistics from the layers themselves:
+    /// candle keeps them in their own variables, not in the VarMap).
+    pub fn weights(&self) -> Result<Weights, EncoderError> {
+        let v = |t: &Tensor| t.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(ce);
+        let mut blocks = Vec::new();
+        for (conv, bn) in &self.blocks {
+            let (w, b) = bn
+                .weight_and_bias()
+                .ok_or_else(|| EncoderError::Model("batch norm without affine weights".into()))?;
+            blocks.push(Block {
+                conv: v(conv.weight())?,
+                bn_weight: v(w)?,
+                bn_bias: v(b)?,
+                bn_mean: v(bn.running_mean())?,
+                bn_var: v(bn.running_var())?,
+            });
+        }
+        let fc_bias = self
+            .fc
+            .bias()
+            .ok_or_else(|| EncoderError::Model("fc without bias".into()))?;
+        Ok(Weights {
+            kind: self.kind,
+            blocks,
+            fc_weight: v(self.fc.weight())?,
+            fc_bias: v(fc_bias)?,
+        })
+    }
+}
+
+/// Fill a VarMap with `weights`, or with a seeded Kaiming-normal initialisation when `None`.
+pub fn init_varmap(kind: ModelKind, weights: Option<&Weights>, seed: u64) -> Result<VarMap, EncoderError> {
+    let dev = Device::Cpu;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut normal = |n: usize, fan_in: usize| -> Vec<f32> {
+        let std = (2.0 / fan_in as f64).sqrt();
+        let d = Normal::new(0.0, std).unwrap_or_else(|_| Normal::new(0.0, 1.0).expect("unit normal"));
+        (0..n).map(|_| d.sample(&mut rng) as f32).collect()
+    };
+    let k = kind.outputs().len();
+    let fresh = Weights {
+        kind,
+        blocks: BLOCKS
+            .iter()
+            .map(|&(cin, cout, _)| Block {
+                conv: normal(cout * cin * 9, cin * 9),
+                bn_weight: vec![1.0; cout],
+                bn_bias: vec![0.0; cout],
+                bn_mean: vec![0.0; cout],
+                bn_var: vec![1.0; cout],
+            })
+            .collect(),
+        // Small head: training starts near s = 0.5 (the middle of every range).
+        fc_weight: normal(k * FEATURES, FEATURES).into_iter().map(|w| w * 0.1).collect(),
+        fc_bias: vec![0.0; k],
+    };
+    let w = match weights {
+        Some(w) if w.kind != kind => {
+            return Err(EncoderError::Model(format!(
+                "the initial model is {}, the data are {}",
+                w.kind.name(),
+                kind.name()
+            )))
+        }
+        Some(w) => w,
+        None => &fresh,
+    };
+    let varmap = VarMap::new();
+    {
+        let mut data = varmap
+            .data()
+            .lock()
+            .map_err(|_| EncoderError::Model("poisoned var map".into()))?;
+        let mut put = |name: String, v: &[f32], shape: &[usize]| -> Result<(), EncoderError> {
+            let t = Tensor::from_slice(v, shape, &dev).map_err(ce)?;
+            data.insert(name, Var::from_tensor(&t).map_err(ce)?);
+            Ok(())
+        };
+        for (i, (b, &(cin, cout, _))) in w.blocks.iter().zip(&BLOCKS).enumerate() {
+            put(format!("b{i}.conv.weight"), &b.conv, &[cout, cin, 3, 3])?;
+            put(format!("b{i}.bn.weight"), &b.bn_weight, &[cout])?;
+            put(format!("b{i}.bn.bias"), &b.bn_bias, &[cout])?;
+            put(format!("b{i}.bn.running_mean"), &b.bn_mean, &[cout])?;
+            put(format!("b{i}.bn.running_var"), &b.bn_var, &[cout])?;
+        }
+        put("fc.weight".into(), &w.fc_weight, &[k, FEATURES])?;
+        put("fc.bias".into(), &w.fc_bias, &[k])?;
+    }
+    Ok(varmap)
+}
+
+#[derive(Clone, Debug)]
+pub struct TrainConfig {
+    pub epochs: usize,
+    pub batch: usize,
+    pub lr: f64,
+    pub seed: u64,
+    /// Stop after this many optimiser steps (tests); `None` = all epochs.
+    pub max_steps: Option<usize>,
+}
+
+/// What a run did: the loss of every step and per-epoch summaries.
+pub struct TrainLog {
+    pub step_losses: Vec<f32>,
+    pub seconds: f64,
+    pub images: usize,
+}
+
+/// Train on `data` (starting from `init` if given) and return the network.
+pub fn train(
+    data: &Loaded,
+    init: Option<&Weights>,
+    cfg: &TrainConfig,
+    val: Option<&Loaded>,
+    log: &mut dyn FnMut(&str),
+) -> Result<(Net, TrainLog), EncoderError> {
+    let kind = data.kind;
+    if let Some(v) = val {
+        if v.kind != kind {
+            return Err(EncoderError::Model(format!(
+                "the validation data are {}, the training data {}",
+                v.kind.name(),
+                kind.name()
+            )));
+        }
+    }
+    let varmap = init_varmap(kind, init, cfg.seed)?;
+    let net = Net::new(kind, &varmap)?;
+    let trainable: Vec<Var> = {
+        let map = varmap
+            .data()
+            .lock()
+            .map_err(|_| EncoderError::Model("poisoned var map".into()))?;
+        let mut names: Vec<&String> = map.keys().filter(|n| !n.contains("running_")).collect();
+        // Sorted, so the optimiser's order does not depend on the hash map.
+        names.sort();
+        names.into_iter().filter_map(|n| map.get(n).cloned()).collect()
+    };
+    let mut opt = candle_nn::AdamW::new(
+        trainable,
+        candle_nn::ParamsAdamW {
+            lr: cfg.lr,
+            weight_decay: 1e-4,
+            ..Default::default()
+        },
+    )
+    .map_err(ce)?;
+
+    let inputs = data.inputs(1.0)?;
+    let targets = data.targets();
+    let n = targets.len();
+    let outputs = kind.outputs();
+    let k = outputs.len();
+    let unit_targets: Vec<f32> = targets
+        .iter()
+        .flat_map(|t| t.iter().zip(outputs).map(|(v, r)| r.to_unit(*v) as f32))
+        .collect();
+    let phys_targets: Vec<f32> = targets.iter().flat_map(|t| t.iter().map(|&v| v as f32)).collect();
+    // Absolute errors are weighed by the width of each range, so rho_d and alpha count alike.
+    let widths: Vec<f32> = outputs.iter().map(|r| (r.hi - r.lo) as f32).collect();
+    let dev = Device::Cpu;
+    let inv_w = Tensor::from_vec(widths.iter().map(|w| 1.0 / w).collect::<Vec<f32>>(), (1, k), &dev).map_err(ce)?;
+
+    let batch = cfg.batch.clamp(2, n.max(2));
+    let steps_per_epoch = n.div_ceil(batch);
+    let total = cfg.max_steps.unwrap_or(cfg.epochs * steps_per_epoch).max(1);
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5eed);
+    let mut order: Vec<usize> = (0..n).collect();
+    let mut step_losses = Vec::new();
+    let start = Instant::now();
+    let mut step = 0;
+    let mut seen = 0;
+    'epochs: for epoch in 0.. {
+        order.shuffle(&mut rng);
+        let mut epoch_loss = 0.0;
+        let mut epoch_steps = 0;
+        for idx in order.chunks(batch) {
+            if step >= total {
+                break 'epochs;
+            }
+            // Batch norm needs at least two images.
+            if idx.len() < 2 {
+                continue;
+            }
+            let lr = cfg.lr * 0.5 * (1.0 + (std::f64::consts::PI * step as f64 / total as f64).cos());
+            opt.set_learning_rate(lr);
+            let mut xb = Vec::with_capacity(idx.len() * INPUT_LEN);
+            let mut ub = Vec::with_capacity(idx.len() * k);
+            let mut pb = Vec::with_capacity(idx.len() * k);
+            for &i in idx {
+                let x = &inputs[i * INPUT_LEN..(i + 1) * INPUT_LEN];
+                if rng.random::<bool>() {
+                    xb.extend(flip_vertical(x));
+                } else {
+                    xb.extend_from_slice(x);
+                }
+                ub.extend_from_slice(&unit_targets[i * k..(i + 1) * k]);
+                pb.extend_from_slice(&phys_targets[i * k..(i + 1) * k]);
+            }
+            let b = idx.len();
+            let loss = (|| -> candle_core::Result<Tensor> {
+                let x = Tensor::from_vec(xb, (b, 3, INPUT_SIZE, INPUT_SIZE), &dev)?;
+                let u = Tensor::from_vec(ub, (b, k), &dev)?;
+                let p = Tensor::from_vec(pb, (b, k), &dev)?;
+                let s = net.unit(&x, true)?;
+                let phys = net.params_of_unit(&s)?;
+                // Unit-space error (relative for the log-mapped alpha) + range-scaled absolute error.
+                let l_unit = (&s - &u)?.abs()?.mean_all()?;
+                let l_phys = (&phys - &p)?.abs()?.broadcast_mul(&inv_w)?.mean_all()?;
+                l_unit + l_phys
+            })()
+            .map_err(ce)?;
+            opt.backward_step(&loss).map_err(ce)?;
+            let l = loss.to_scalar::<f32>().map_err(ce)?;
+            if !l.is_finite() {
+                return Err(EncoderError::Model(format!("the loss diverged at step {step}")));
+            }
+            step_losses.push(l);
+            epoch_loss += l as f64;
+            epoch_steps += 1;
+            step += 1;
+            seen += b;
+        }
+        let mut line = format!(
+            "epoch {:3}  loss {:.5}  {:.0} s  {:.0} img/s",
+            epoch + 1,
+            epoch_loss / epoch_steps.max(1) as f64,
+            start.elapsed().as_secs_f64(),
+            seen as f64 / start.elapsed().as_secs_f64().max(1e-9)
+        );
+        if let Some(v) = val {
+            let mae = mae(&net, v)?;
+            let cols: Vec<String> = outputs
+                .iter()
+                .zip(&mae)
+                .map(|(r, m)| format!("{} {m:.4}", r.name))
+                .collect();
+            line += &format!("  val MAE {}", cols.join("  "));
+        }
+        log(&line);
+    }
+    Ok((
+        net,
+        TrainLog {
+            step_losses,
+            seconds: start.elapsed().as_secs_f64(),
+            images: seen,
+        },
+    ))
+}
+
+/// Mean absolute error per output of `net` on `data` (candle, inference mode).
+pub fn mae(net: &Net, data: &Loaded) -> Result<Vec<f64>, EncoderError> {
+    if data.kind != net.kind {
+        return Err(EncoderError::Model(format!(
+            "the data are {}, the network {}",
+            data.kind.name(),
+            net.kind.name()
+        )));
+    }
+    let pred = net.predict(&data.inputs(1.0)?)?;
+    let k = net.kind.outputs().len();
+    let mut sum = vec![0.0; k];
+    for (p, t) in pred.iter().zip(data.targets()) {
+        for j in 0..k {
+            sum[j] += (p[j] as f64 - t[j]).abs();
+        }
+    }
+    Ok(sum.into_iter().map(|s| s / pred.len().max(1) as f64).collect())
+}
+
+/// Load a dataset's training rows (everything but `split = test`).
+pub fn load_train(dir: &Path) -> Result<Loaded, EncoderError> {
+    dataset::load(dir, &|s| s != "test")
+}
