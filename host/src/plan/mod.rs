@@ -20,7 +20,6 @@ pub mod report;
 use crate::brdf::analytic::Ggx;
 use crate::brdf::frame::{from_spherical, phi_of, theta_of};
 use crate::brdf::grid::{incident_thetas, MeasurementGrid, NodeLayout, THETA_I_MAX};
-use crate::brdf::microfacet::projected_area;
 use crate::brdf::spec::Analytic;
 use crate::brdf::warp::{MixtureWarp, SliceWarp, Warp, WarpKind};
 use crate::brdf::Material;
@@ -103,33 +102,7 @@ pub fn spaced_thetas(spacing: Spacing, k: usize, alpha: f64) -> Vec<f64> {
     match spacing {
         Spacing::Cosine => incident_thetas(k),
         Spacing::Angle => (0..k).map(|i| f(i) * THETA_I_MAX).collect(),
-        Spacing::Rgl => {
-            // sigma falls monotonically from 1 at theta = 0 to sigma(THETA_I_MAX); bisect each step.
-            let a = alpha.clamp(PLAN_ALPHA_MIN, 1.0);
-            let sigma = |t: f64| projected_area(from_spherical(t, 0.0), a);
-            let (s0, s1) = (sigma(0.0), sigma(THETA_I_MAX));
-            (0..k)
-                .map(|i| {
-                    let target = s0 - f(i) * (s0 - s1);
-                    let (mut lo, mut hi) = (0.0, THETA_I_MAX);
-                    for _ in 0..60 {
-                        let mid = 0.5 * (lo + hi);
-                        if sigma(mid) > target {
-                            lo = mid;
-                        } else {
-                            hi = mid;
-                        }
-                    }
-                    if i == 0 {
-                        0.0
-                    } else if i == k - 1 {
-                        THETA_I_MAX
-                    } else {
-                        0.5 * (lo + hi)
-                    }
-                })
-                .collect()
-        }
+        Spacing::Rgl => crate::brdf::rgl::sigma_spaced_thetas(alpha.clamp(PLAN_ALPHA_MIN, 1.0), k, THETA_I_MAX),
     }
 }
 

@@ -205,34 +205,47 @@ impl Material for RglBsdf {
     }
 }
 
-/// Write an isotropic RGB file for `material` by RGL-FORMAT.md section 6, using a GGX alpha for the
-/// warp: K incident elevations by the RGL sigma rule, n x n vndf/ndf/sigma tables, N x N rgb grid.
-pub fn tabulate_ggx(material: &dyn Material, alpha: f64, k: usize, n: usize, grid: usize) -> Vec<u8> {
-    let sigma_of = |theta: f64| projected_area(from_spherical(theta, 0.0), alpha);
-    let d_of = |theta: f64| ndf(from_spherical(theta, 0.0), alpha);
-    // 1. theta_i with sigma equally spaced from sigma(0) to sigma(pi/2), by bisection (sigma falls
-    //    monotonically with theta), stored and used as f32.
-    let (s0, s1) = (sigma_of(0.0), sigma_of(FRAC_PI_2));
-    let thetas: Vec<f64> = (0..k)
+/// The RGL rule for incident elevations: `k` angles from 0 to `theta_max` (both included) with the
+/// GGX projected area sigma(theta) equally spaced between its end values. sigma falls monotonically
+/// with theta, so each angle is found by bisection (60 halvings: below f64 resolution).
+pub fn sigma_spaced_thetas(alpha: f64, k: usize, theta_max: f64) -> Vec<f64> {
+    if k <= 1 {
+        return vec![0.0];
+    }
+    let sigma = |theta: f64| projected_area(from_spherical(theta, 0.0), alpha);
+    let (s0, s1) = (sigma(0.0), sigma(theta_max));
+    (0..k)
         .map(|i| {
+            if i == 0 {
+                return 0.0;
+            }
+            if i == k - 1 {
+                return theta_max;
+            }
             let target = s0 - i as f64 / (k - 1) as f64 * (s0 - s1);
-            let (mut lo, mut hi) = (0.0, FRAC_PI_2);
+            let (mut lo, mut hi) = (0.0, theta_max);
             for _ in 0..60 {
                 let mid = 0.5 * (lo + hi);
-                if sigma_of(mid) > target {
+                if sigma(mid) > target {
                     lo = mid;
                 } else {
                     hi = mid;
                 }
             }
-            if i == 0 {
-                0.0
-            } else if i == k - 1 {
-                FRAC_PI_2 as f32 as f64
-            } else {
-                (0.5 * (lo + hi)) as f32 as f64
-            }
+            0.5 * (lo + hi)
         })
+        .collect()
+}
+
+/// Write an isotropic RGB file for `material` by RGL-FORMAT.md section 6, using a GGX alpha for the
+/// warp: K incident elevations by the RGL sigma rule, n x n vndf/ndf/sigma tables, N x N rgb grid.
+pub fn tabulate_ggx(material: &dyn Material, alpha: f64, k: usize, n: usize, grid: usize) -> Vec<u8> {
+    let sigma_of = |theta: f64| projected_area(from_spherical(theta, 0.0), alpha);
+    let d_of = |theta: f64| ndf(from_spherical(theta, 0.0), alpha);
+    // 1. theta_i by the RGL sigma rule, stored and used as f32.
+    let thetas: Vec<f64> = sigma_spaced_thetas(alpha, k, FRAC_PI_2)
+        .into_iter()
+        .map(|t| t as f32 as f64)
         .collect();
     // 2. ndf and sigma on the u_theta grid, two identical rows.
     let u: Vec<f64> = (0..n).map(|j| j as f64 / (n - 1) as f64).collect();
