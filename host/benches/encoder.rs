@@ -7,6 +7,7 @@ use criterion::Criterion;
 use gonio::encoder::dataset::render_capture;
 use gonio::encoder::infer::{shipped, Encoder};
 use gonio::encoder::{preprocess, resample_square, ModelKind};
+use gonio::plan::photo::estimate_from_image;
 use gonio::render::Image;
 use std::hint::black_box;
 use std::time::{Duration, Instant};
@@ -41,6 +42,15 @@ fn benches(c: &mut Criterion) {
         });
         g.finish();
     }
+    // The planner's whole photo step: GGX network + the diffuse/specular split fitted against two
+    // capture renders (plan::photo).
+    let ggx = Encoder::shipped(ModelKind::Ggx).expect("shipped model");
+    let mut g = c.benchmark_group("photo_estimate");
+    g.sample_size(10);
+    g.bench_function("ggx_with_ratio_fit_128x128", |b| {
+        b.iter(|| estimate_from_image(black_box(&photo), &ggx, None).expect("estimate"))
+    });
+    g.finish();
     c.bench_function("preprocess_128x128", |b| {
         b.iter(|| preprocess(black_box(&photo)).expect("pre"))
     });
@@ -93,4 +103,12 @@ fn main() {
             load.as_secs_f64() * 1e3
         );
     }
+    let ggx = Encoder::shipped(ModelKind::Ggx).expect("model");
+    let photo_step = mean(10, || {
+        estimate_from_image(&photo, &ggx, None).expect("estimate");
+    });
+    println!(
+        "  photo -> planner estimate (ggx network + diffuse/specular fit): {:.1} ms",
+        photo_step.as_secs_f64() * 1e3
+    );
 }

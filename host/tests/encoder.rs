@@ -42,9 +42,9 @@ fn shipped_models_give_their_documented_outputs() {
             for ((g, w), t) in got.iter().zip(want).zip(truth) {
                 // Documented to 4 decimals; tract's kernels may round differently across CPUs.
                 assert!((g - w).abs() < 2e-4, "{file}: got {got:?}, documented {want:?}");
-                // And they are estimates of the truth, not just frozen numbers: within the worst
-                // test-set error of the model card (Ward 0.05; GGX on MERL 0.13).
-                let tol = if kind == ModelKind::Ward { 0.06 } else { 0.15 };
+                // And they are estimates of the truth, not just frozen numbers: these photos are
+                // within 0.06 (Ward) and 0.1 (GGX on MERL; the model card's worst is 0.085).
+                let tol = if kind == ModelKind::Ward { 0.06 } else { 0.1 };
                 assert!((g - t).abs() < tol, "{file}: got {got:?}, true {truth:?}");
             }
         }

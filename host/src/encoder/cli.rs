@@ -47,6 +47,9 @@ pub struct TrainArgs {
     /// Print the MAE on this dataset's test rows (or all rows) after every epoch.
     #[arg(long)]
     pub val: Option<PathBuf>,
+    /// Show this fraction of training images as clipped 8-bit PNGs under x0.25 .. x4 light.
+    #[arg(long, default_value_t = 0.0)]
+    pub png_augment: f64,
 }
 
 #[derive(Args)]
@@ -129,6 +132,9 @@ pub fn run_train(args: TrainArgs) -> Result<()> {
     if args.epochs == 0 || args.batch < 2 {
         bail!("--epochs must be >= 1 and --batch >= 2");
     }
+    if !(0.0..=1.0).contains(&args.png_augment) {
+        bail!("--png-augment must be a probability in [0, 1]");
+    }
     println!(
         "training {} on {} images of {} (epochs {}, batch {}, lr {}, seed {})",
         data.kind.name(),
@@ -145,16 +151,18 @@ pub fn run_train(args: TrainArgs) -> Result<()> {
         lr: args.lr,
         seed: args.seed,
         max_steps: None,
+        png_augment: args.png_augment,
     };
     let (net, log) = train::train(&data, init.as_ref(), &cfg, val.as_ref(), &mut |l| println!("{l}"))?;
     let doc = format!(
-        "gonio encoder ({}), trained by `gonio train {}` (epochs {}, batch {}, lr {}, seed {}{})",
+        "gonio encoder ({}), trained by `gonio train {}` (epochs {}, batch {}, lr {}, seed {}, png-augment {}{})",
         data.kind.name(),
         args.data.display(),
         args.epochs,
         args.batch,
         args.lr,
         args.seed,
+        args.png_augment,
         args.init
             .as_ref()
             .map(|p| format!(", init {}", p.display()))

@@ -5,7 +5,7 @@
 
 use super::dataset::{self, Loaded};
 use super::onnx::{Block, RangeMap, Weights, BLOCKS, BN_EPS, FEATURES};
-use super::{flip_vertical, EncoderError, ModelKind, INPUT_LEN, INPUT_SIZE};
+use super::{flip_vertical, preprocess, EncoderError, ModelKind, INPUT_LEN, INPUT_SIZE};
 use candle_core::{DType, Device, Tensor, Var, D};
 use candle_nn::{BatchNorm, Conv2d, Conv2dConfig, Linear, ModuleT, Optimizer, VarBuilder, VarMap};
 use rand::seq::SliceRandom;
@@ -192,7 +192,15 @@ pub struct TrainConfig {
     pub seed: u64,
     /// Stop after this many optimiser steps (tests); `None` = all epochs.
     pub max_steps: Option<usize>,
+    /// Probability that a training image is shown as an 8-bit PNG auto-exposed at x1 and then lit
+    /// by a factor log-uniform in `PNG_AUGMENT_RANGE` (`report::photo`, `Photo::Png8`): brighter
+    /// light clips the highlight as a camera would, so the network learns to read clipped photos.
+    /// 0 = linear images only.
+    pub png_augment: f64,
 }
+
+/// Light factors of the clipped-PNG augmentation (the x0.25 .. x4).
+pub const PNG_AUGMENT_RANGE: (f64, f64) = (0.25, 4.0);
 
 /// What a run did: the loss of every step and per-epoch summaries.
 pub struct TrainLog {
@@ -283,7 +291,16 @@ pub fn train(
             let mut ub = Vec::with_capacity(idx.len() * k);
             let mut pb = Vec::with_capacity(idx.len() * k);
             for &i in idx {
-                let x = &inputs[i * INPUT_LEN..(i + 1) * INPUT_LEN];
+                let augmented;
+                let mut x = &inputs[i * INPUT_LEN..(i + 1) * INPUT_LEN];
+                if cfg.png_augment > 0.0 && rng.random::<f64>() < cfg.png_augment {
+                    let (lo, hi) = PNG_AUGMENT_RANGE;
+                    let light = lo * (hi / lo).powf(rng.random::<f64>());
+                    let png = super::report::photo(&data.images[i], light, super::report::Photo::Png8);
+                    augmented = preprocess(&png)
+                        .map_err(|e| EncoderError::dataset(&data.dir.join(&data.samples[i].file), e))?;
+                    x = &augmented;
+                }
                 if rng.random::<bool>() {
                     xb.extend(flip_vertical(x));
                 } else {
