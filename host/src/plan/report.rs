@@ -15,6 +15,7 @@ use super::{estimate_for, Estimate, Plan, PlanConfig, PlanError, Planner, Spacin
 use crate::brdf::fit::fit_directions;
 use crate::brdf::{parse_material, Material};
 use crate::plot::{Chart, Mark, Series};
+use crate::render::brdf_sampling::BrdfSampler;
 use crate::render::metrics::{compare, Comparison};
 use crate::render::{render_plain, Image, Scene};
 use glam::DVec3;
@@ -65,9 +66,11 @@ impl Default for ReportConfig {
     }
 }
 
-/// Renders a material in the capture scene.
+/// Renders a material in the capture scene (point light) and, if given, in an environment-lit
+/// scene; scores BRDF-space error over the fit's direction set.
 pub struct Scorer {
     scene: Scene,
+    env: Option<Scene>,
     pairs: Vec<(DVec3, DVec3)>,
 }
 
@@ -79,13 +82,31 @@ impl Scorer {
         scene.camera.height = size;
         Ok(Self {
             scene,
+            env: None,
             pairs: fit_directions(),
         })
+    }
+
+    /// Also render under `env` (e.g. `examples/sphere-sky.toml`), with its own camera and settings.
+    pub fn with_env(mut self, env: Scene) -> Self {
+        self.env = Some(env);
+        self
     }
 
     pub fn render(&mut self, material: Box<dyn Material>) -> Image {
         self.scene.material = material;
         render_plain(&self.scene, &self.scene.settings, &|| {})
+    }
+
+    /// The environment render, importance-sampled as `sampler_spec` would be. Give the truth and
+    /// its reconstructions the same `sampler_spec` (and the scene its fixed seed): then every
+    /// render draws the same random numbers and the Monte Carlo noise largely cancels in the
+    /// comparison, leaving the BRDF difference.
+    pub fn render_env(&mut self, material: Box<dyn Material>, sampler_spec: &str) -> Option<Image> {
+        let env = self.env.as_mut()?;
+        env.material = material;
+        env.sampler = BrdfSampler::for_spec(sampler_spec);
+        Some(render_plain(env, &env.settings, &|| {}))
     }
 
     pub fn log_err(&self, truth: &dyn Material, test: &dyn Material) -> f64 {
@@ -251,7 +272,7 @@ pub fn stopping(rows: &[Row], target: f64) -> Option<StopChoice> {
 }
 
 /// CSV with the struct's fields as columns, in declaration order (serde's field order).
-fn csv<T: serde::Serialize>(rows: &[T]) -> Result<Vec<u8>, PlanError> {
+pub(super) fn csv<T: serde::Serialize>(rows: &[T]) -> Result<Vec<u8>, PlanError> {
     let mut out = String::new();
     for (n, r) in rows.iter().enumerate() {
         let v = serde_json::to_value(r).map_err(|e| PlanError::Invalid(e.to_string()))?;
@@ -318,7 +339,7 @@ fn fields_in_order<T: serde::Serialize>(r: &T) -> Result<Vec<String>, PlanError>
     Ok(keys)
 }
 
-fn write(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), PlanError> {
+pub(super) fn write(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), PlanError> {
     let path = dir.join(name);
     crate::fsio::write_bytes_atomically(&path, bytes)
         .map_err(|e| PlanError::Invalid(format!("{}: {e}", path.display())))
@@ -351,7 +372,7 @@ pub fn run(
                 strategy,
                 spacing: cfg.spacing,
                 k: cfg.k,
-                max_level: cfg.max_level,
+                grids: super::square_grids(cfg.max_level),
                 bound: true,
             };
             let e = evaluate(
@@ -381,7 +402,7 @@ pub fn run(
                 strategy: Strategy::Mixture,
                 spacing,
                 k: cfg.k,
-                max_level: cfg.spacing_level.min(cfg.max_level),
+                grids: super::square_grids(cfg.spacing_level.min(cfg.max_level)),
                 bound: true,
             };
             let e = evaluate(
@@ -408,7 +429,7 @@ pub fn run(
     Ok(md)
 }
 
-fn short(spec: &str) -> &str {
+pub(super) fn short(spec: &str) -> &str {
     spec.strip_prefix("nbrdf:").unwrap_or(spec)
 }
 
