@@ -86,6 +86,9 @@ pub struct TradeoffArgs {
     pub strategies: Vec<tradeoff::TradeStrategy>,
     #[arg(long, default_value_t = 8)]
     pub incoming: usize,
+    /// How the reconstruction finds u between incoming slices.
+    #[arg(long, value_enum, default_value_t = super::Lookup::Query)]
+    pub lookup: super::Lookup,
     /// Point-light render side in pixels (default 128; table1: 256).
     #[arg(long)]
     pub size: Option<usize>,
@@ -165,6 +168,7 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
         k: args.incoming,
         grids: super::square_grids(max_level),
         bound: true,
+        ..PlanConfig::default()
     };
     let planner = Planner::new(instrument, estimate.clone())?;
     let t0 = std::time::Instant::now();
@@ -334,6 +338,7 @@ pub fn run_tradeoff(args: TradeoffArgs) -> Result<()> {
         cfg.strategies.dedup();
     }
     cfg.k = args.incoming;
+    cfg.lookup = args.lookup;
     if let Some(size) = args.size {
         cfg.size = size;
     }

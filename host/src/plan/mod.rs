@@ -34,7 +34,7 @@ use crate::brdf::analytic::Ggx;
 use crate::brdf::frame::{from_spherical, phi_of, theta_of};
 use crate::brdf::grid::{incident_thetas, MeasurementGrid, NodeLayout, THETA_I_MAX};
 use crate::brdf::spec::Analytic;
-use crate::brdf::warp::{MixtureWarp, SliceWarp, Warp, WarpKind};
+use crate::brdf::warp::{GgxVndf, MixtureWarp, SliceWarp, Warp, WarpKind};
 use crate::brdf::Material;
 use glam::{DVec2, DVec3};
 use gonio_shared::instrument::InstrumentConfig;
@@ -143,6 +143,27 @@ impl Estimate {
     }
 }
 
+/// How a reconstruction finds a query's u in the two bracketing incoming slices.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Lookup {
+    /// Through each slice's own warp (built for the slice's wi).
+    Slice,
+    /// Through the warp re-centred on the query's own wi, in both slices (RGL's files do this): a
+    /// lobe that moves with wi sits at the same u in both, so interpolating between slices does not
+    /// split a peak into two half-peaks at the slices' mirror directions. The uniform warp does not
+    /// depend on wi: there both lookups agree.
+    Query,
+}
+
+impl fmt::Display for Lookup {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Lookup::Slice => "slice",
+            Lookup::Query => "query",
+        })
+    }
+}
+
 /// What to plan.
 #[derive(Clone, Debug)]
 pub struct PlanConfig {
@@ -155,6 +176,8 @@ pub struct PlanConfig {
     /// Compute the motion lower bound (O(n^2) per level; a scan does not need it). Without it the
     /// levels' `lower_bound_motion_seconds` are NaN.
     pub bound: bool,
+    /// The reconstruction's u lookup.
+    pub lookup: Lookup,
 }
 
 impl Default for PlanConfig {
@@ -166,6 +189,7 @@ impl Default for PlanConfig {
             k: crate::brdf::grid::DEFAULT_K,
             grids: square_grids(4),
             bound: true,
+            lookup: Lookup::Query,
         }
     }
 }
@@ -323,6 +347,36 @@ pub struct Plan {
     /// Finest-level node (k, i, j) -> index in `directions`, for every node that is measured.
     node_dir: HashMap<(usize, usize, usize), usize>,
     pub settle_exposure_seconds: f64,
+    /// The alpha of the pure-specular slice warps (to re-centre them on a query's wi).
+    specular_alpha: f64,
+}
+
+/// A level's measurements as a material: the measurement grid, read through `Lookup`.
+#[derive(Clone, Debug)]
+pub struct Reconstruction {
+    grid: MeasurementGrid,
+    slices: Vec<SliceWarp>,
+    lookup: Lookup,
+    specular_alpha: f64,
+}
+
+impl Reconstruction {
+    pub fn grid(&self) -> &MeasurementGrid {
+        &self.grid
+    }
+}
+
+impl Material for Reconstruction {
+    fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
+        match self.lookup {
+            Lookup::Slice => self.grid.eval(wi, wo),
+            Lookup::Query => self.grid.eval_with_lookup(wi, wo, &|k, wi, wo| match self.slices.get(k)? {
+                SliceWarp::Mixture(m) => m.invert_from(wi, wo),
+                SliceWarp::GgxVndf(_) => GgxVndf::new(wi, self.specular_alpha).invert(wo),
+                other => other.invert(wo),
+            }),
+        }
+    }
 }
 
 /// The planner: an instrument and an estimate.
@@ -536,6 +590,7 @@ impl Planner {
             dropped,
             node_dir,
             settle_exposure_seconds: settle_exposure,
+            specular_alpha: self.estimate.alpha().max(PLAN_ALPHA_MIN),
         })
     }
 }
@@ -590,7 +645,7 @@ impl Plan {
 
     /// Reconstruct level `level` from the measured values (indexed like `directions`; only the
     /// prefix up to the level is read). Unmeasured nodes take their nearest measured neighbour's value.
-    pub fn reconstruct(&self, level: usize, values: &[DVec3]) -> Result<MeasurementGrid, PlanError> {
+    pub fn reconstruct(&self, level: usize, values: &[DVec3]) -> Result<Reconstruction, PlanError> {
         let summary = self
             .level(level)
             .ok_or_else(|| PlanError::Invalid(format!("no level {level}")))?;
@@ -628,7 +683,12 @@ impl Plan {
             }
         }
         grid.fill_from_nearest();
-        Ok(grid)
+        Ok(Reconstruction {
+            grid,
+            slices: self.slices.clone(),
+            lookup: self.config.lookup,
+            specular_alpha: self.specular_alpha,
+        })
     }
 
     /// Measure `material` at every planned direction (the virtual scan without effects).

@@ -374,6 +374,7 @@ pub fn run(
                 k: cfg.k,
                 grids: super::square_grids(cfg.max_level),
                 bound: true,
+                ..PlanConfig::default()
             };
             let e = evaluate(
                 &mut scorer,
@@ -404,6 +405,7 @@ pub fn run(
                 k: cfg.k,
                 grids: super::square_grids(cfg.spacing_level.min(cfg.max_level)),
                 bound: true,
+                ..PlanConfig::default()
             };
             let e = evaluate(
                 &mut scorer,

@@ -138,6 +138,8 @@ pub struct TradeoffConfig {
     pub paper: bool,
     /// The preset this config came from (for the regenerate line), if any.
     pub preset: Option<Preset>,
+    /// The reconstruction's u lookup.
+    pub lookup: super::Lookup,
 }
 
 impl Default for TradeoffConfig {
@@ -153,6 +155,7 @@ impl Default for TradeoffConfig {
             env_spp: 64,
             paper: false,
             preset: None,
+            lookup: super::Lookup::Query,
         }
     }
 }
@@ -311,6 +314,7 @@ pub fn run(
                 k: cfg.k,
                 grids: cfg.grids.clone(),
                 bound: false,
+                lookup: cfg.lookup,
             };
             let t0 = Instant::now();
             let plan = Planner::new(*instrument, estimate.clone())?.plan(&config)?;
@@ -389,9 +393,10 @@ fn command(cfg: &TradeoffConfig) -> String {
     let grids: Vec<String> = cfg.grids.iter().map(|(n, m)| format!("{n}x{m}")).collect();
     let _ = write!(
         c,
-        " --levels {} --incoming {} --size {} --env-size {} --env-spp {} -o DIR",
+        " --levels {} --incoming {} --lookup {} --size {} --env-size {} --env-spp {} -o DIR",
         grids.join(","),
         cfg.k,
+        cfg.lookup,
         cfg.size,
         cfg.env_size,
         cfg.env_spp

@@ -176,6 +176,7 @@ const TABLE_FLOOR: f64 = 1e-4;
 #[derive(Clone, Debug)]
 pub struct MixtureWarp {
     base: GgxVndf,
+    base_alpha: f64,
     table: Marginal2D,
 }
 
@@ -242,7 +243,15 @@ impl MixtureWarp {
         }
         // Positive, finite values on strictly increasing axes: `new` cannot fail.
         let table = Marginal2D::new(xs, ys, values).expect("mixture table is valid by construction");
-        Self { base, table }
+        Self { base, base_alpha, table }
+    }
+
+    /// The u of wo through this slice's table but the base warp re-centred on another incident
+    /// direction `wi` (RGL's lookup: a query between two slices maps wo through the warp of its own
+    /// wi, so a peak that moves with wi is found at the same u in both slices). `invert` is
+    /// `invert_from(own wi, wo)`.
+    pub fn invert_from(&self, wi: DVec3, wo: DVec3) -> Option<DVec2> {
+        GgxVndf::new(wi, self.base_alpha).invert(wo).map(|v| self.table.invert(v))
     }
 }
 
