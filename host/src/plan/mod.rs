@@ -27,6 +27,7 @@
 pub mod cli;
 pub mod file;
 pub mod order;
+pub mod photo;
 pub mod report;
 pub mod tradeoff;
 
