@@ -16,6 +16,10 @@
 use super::report::{csv, score, short, write, Scorer};
 use super::{estimate_for, Estimate, PlanConfig, PlanError, Planner, Spacing, Strategy};
 use crate::brdf::parse_material;
+use crate::encoder::dataset::capture_scene;
+use crate::encoder::infer::Encoder;
+use crate::encoder::ModelKind;
+use crate::render::render_with;
 use crate::plot::{Chart, Mark, Series};
 use crate::render::Scene;
 use gonio_shared::instrument::InstrumentConfig;
@@ -236,14 +240,19 @@ pub struct TradeRow {
     pub paper_psnr_env: Option<f64>,
 }
 
-/// The encoder's estimate from a capture photo of `spec` and its inference time (s). The photo is
-/// rendered per `examples/capture.toml` (it stands in for the camera and is not timed).
-pub fn photo_estimate(spec: &str) -> Result<(Estimate, f64), PlanError> {
-    let _ = spec;
-    Err(PlanError::Invalid(
-        "the adaptive strategy needs gonio::plan::photo (not merged yet)".into(),
-    ))
+/// The encoder's estimate (`plan::photo::estimate_from_image`, GGX model) from a capture photo of
+/// `spec`, and the host time it took (s). The photo is rendered per `examples/capture.toml` (256 px,
+/// linear: it stands in for the camera and is not timed).
+pub fn photo_estimate(spec: &str, encoder: &Encoder) -> Result<(Estimate, f64), PlanError> {
+    let scene = capture_scene(spec, CAPTURE_SIZE).map_err(PlanError::Invalid)?;
+    let photo = render_with(&scene, &scene.settings, &|| {}).map_err(|e| PlanError::Invalid(e.to_string()))?;
+    let t0 = Instant::now();
+    let est = super::photo::estimate_from_image(&photo, encoder, None)?;
+    Ok((est.estimate, t0.elapsed().as_secs_f64()))
 }
+
+/// Side of the rendered capture photo (as `examples/capture.toml`).
+const CAPTURE_SIZE: usize = 256;
 
 fn paper_psnr(material: &str, grid: (usize, usize)) -> Option<f64> {
     let col = TABLE1_GRIDS.iter().position(|&g| g == grid)?;
@@ -275,6 +284,11 @@ pub fn run(
     let mut scorer = Scorer::new(cfg.size)?.with_env(env_scene);
     // Resolve every material and estimate first: a bad spec fails before any long work.
     let needs_photo = cfg.strategies.iter().any(|s| s.from_photo());
+    let encoder = if needs_photo {
+        Some(Encoder::shipped(ModelKind::Ggx).map_err(|e| PlanError::Invalid(e.to_string()))?)
+    } else {
+        None
+    };
     let mut inputs = Vec::new();
     for spec in &cfg.materials {
         let truth = parse_material(spec)?;
@@ -285,7 +299,10 @@ pub fn run(
         } else {
             t0.elapsed().as_secs_f64()
         };
-        let photo = if needs_photo { Some(photo_estimate(spec)?) } else { None };
+        let photo = match &encoder {
+            Some(e) => Some(photo_estimate(spec, e)?),
+            None => None,
+        };
         inputs.push((spec.clone(), truth, (true_estimate, fit_seconds), photo));
     }
     std::fs::create_dir_all(dir).map_err(|e| PlanError::Invalid(format!("{}: {e}", dir.display())))?;
