@@ -89,6 +89,9 @@ pub struct TradeoffArgs {
     /// How the reconstruction finds u between incoming slices.
     #[arg(long, value_enum, default_value_t = super::Lookup::Query)]
     pub lookup: super::Lookup,
+    /// What the reconstruction interpolates between nodes.
+    #[arg(long, value_enum, default_value_t = super::Interp::Log)]
+    pub interp: super::Interp,
     /// Point-light render side in pixels (default 128; table1: 256).
     #[arg(long)]
     pub size: Option<usize>,
@@ -339,6 +342,7 @@ pub fn run_tradeoff(args: TradeoffArgs) -> Result<()> {
     }
     cfg.k = args.incoming;
     cfg.lookup = args.lookup;
+    cfg.interp = args.interp;
     if let Some(size) = args.size {
         cfg.size = size;
     }

@@ -165,6 +165,26 @@ impl fmt::Display for Lookup {
     }
 }
 
+/// What the reconstruction interpolates between nodes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Interp {
+    /// The measured values f.
+    Linear,
+    /// log(1 + f) per channel, mapped back with exp - 1: a node on a sharp peak (f ~ 100s) then
+    /// decays toward its neighbours geometrically instead of spreading a linear ramp of peak-sized
+    /// values over the whole cell, which at coarse levels covers much of the hemisphere.
+    Log,
+}
+
+impl fmt::Display for Interp {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Interp::Linear => "linear",
+            Interp::Log => "log",
+        })
+    }
+}
+
 /// What to plan.
 #[derive(Clone, Debug)]
 pub struct PlanConfig {
@@ -179,6 +199,8 @@ pub struct PlanConfig {
     pub bound: bool,
     /// The reconstruction's u lookup.
     pub lookup: Lookup,
+    /// The reconstruction's interpolated quantity.
+    pub interp: Interp,
 }
 
 impl Default for PlanConfig {
@@ -191,6 +213,7 @@ impl Default for PlanConfig {
             grids: square_grids(4),
             bound: true,
             lookup: Lookup::Query,
+            interp: Interp::Log,
         }
     }
 }
@@ -358,6 +381,7 @@ pub struct Reconstruction {
     grid: MeasurementGrid,
     slices: Vec<SliceWarp>,
     lookup: Lookup,
+    interp: Interp,
     specular_alpha: f64,
 }
 
@@ -369,13 +393,17 @@ impl Reconstruction {
 
 impl Material for Reconstruction {
     fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
-        match self.lookup {
+        let v = match self.lookup {
             Lookup::Slice => self.grid.eval(wi, wo),
             Lookup::Query => self.grid.eval_with_lookup(wi, wo, &|k, wi, wo| match self.slices.get(k)? {
                 SliceWarp::Mixture(m) => m.invert_from(wi, wo),
                 SliceWarp::GgxVndf(_) => GgxVndf::new(wi, self.specular_alpha).invert(wo),
                 other => other.invert(wo),
             }),
+        };
+        match self.interp {
+            Interp::Linear => v,
+            Interp::Log => v.map(f64::exp_m1),
         }
     }
 }
@@ -678,7 +706,11 @@ impl Plan {
                         .node_dir
                         .get(&(k, i * stride_i, j * stride_j))
                         .filter(|&&d| d < limit)
-                        .map(|&d| values[d]);
+                        .map(|&d| match self.config.interp {
+                            Interp::Linear => values[d],
+                            // Guard: a negative reading (noise) has no log; clamp it at 0.
+                            Interp::Log => values[d].max(DVec3::ZERO).map(f64::ln_1p),
+                        });
                     grid.set_node(k, i, j, v);
                 }
             }
@@ -688,6 +720,7 @@ impl Plan {
             grid,
             slices: self.slices.clone(),
             lookup: self.config.lookup,
+            interp: self.config.interp,
             specular_alpha: self.specular_alpha,
         })
     }

@@ -142,8 +142,9 @@ pub struct TradeoffConfig {
     pub paper: bool,
     /// The preset this config came from (for the regenerate line), if any.
     pub preset: Option<Preset>,
-    /// The reconstruction's u lookup.
+    /// The reconstruction's u lookup and interpolated quantity.
     pub lookup: super::Lookup,
+    pub interp: super::Interp,
 }
 
 impl Default for TradeoffConfig {
@@ -160,6 +161,7 @@ impl Default for TradeoffConfig {
             paper: false,
             preset: None,
             lookup: super::Lookup::Query,
+            interp: super::Interp::Log,
         }
     }
 }
@@ -332,6 +334,7 @@ pub fn run(
                 grids: cfg.grids.clone(),
                 bound: false,
                 lookup: cfg.lookup,
+                interp: cfg.interp,
             };
             let t0 = Instant::now();
             let plan = Planner::new(*instrument, estimate.clone())?.plan(&config)?;
@@ -410,10 +413,11 @@ fn command(cfg: &TradeoffConfig) -> String {
     let grids: Vec<String> = cfg.grids.iter().map(|(n, m)| format!("{n}x{m}")).collect();
     let _ = write!(
         c,
-        " --levels {} --incoming {} --lookup {} --size {} --env-size {} --env-spp {} -o DIR",
+        " --levels {} --incoming {} --lookup {} --interp {} --size {} --env-size {} --env-spp {} -o DIR",
         grids.join(","),
         cfg.k,
         cfg.lookup,
+        cfg.interp,
         cfg.size,
         cfg.env_size,
         cfg.env_spp

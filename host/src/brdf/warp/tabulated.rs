@@ -155,10 +155,10 @@ impl Marginal2D {
 
 /// Weight of the plain visible-normal density in the mixture (eq. 6's w_s): the share of nodes that
 /// stay where the pure-specular warp would put them, so a misestimated lobe still gets samples.
-pub const MIXTURE_SPECULAR_WEIGHT: f64 = 0.25;
+pub const MIXTURE_SPECULAR_WEIGHT: f64 = 0.15;
 /// Weight of the equal-angle density (the uniform grid's layout): coverage of directions that
 /// neither the estimate nor the peak would visit, where a misestimated material may still reflect.
-pub const MIXTURE_UNIFORM_WEIGHT: f64 = 0.25;
+pub const MIXTURE_UNIFORM_WEIGHT: f64 = 0.5;
 /// Smallest alpha the mixture's visible-normal base uses. Below it, the whole hemisphere outside
 /// the peak maps into a sliver of u.x near 1 narrower than any table could resolve; the table then
 /// puts the peak's mass back where the estimate says it is.
