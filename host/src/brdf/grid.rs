@@ -315,7 +315,9 @@ impl MeasurementGrid {
         let phi_i = phi_of(wi);
         let wi_local = rotate_z(wi, -phi_i);
         let wo = rotate_z(wo, -phi_i);
-        self.eval_local(theta_of(wi), &|k: usize| u_of(k, wi_local, wo).and_then(|u| self.bilinear(k, u)))
+        self.eval_local(theta_of(wi), &|k: usize| {
+            u_of(k, wi_local, wo).and_then(|u| self.bilinear(k, u))
+        })
     }
 }
 

@@ -4,17 +4,26 @@
 use super::report::{self, ReportConfig, Scorer};
 use super::tradeoff;
 use super::{estimate_for, Plan, PlanConfig, PlanError, Planner, Spacing, Strategy, MAX_LEVEL};
+use crate::encoder::ModelKind;
 use anyhow::{bail, Context, Result};
 use gonio_shared::instrument::AXES;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
 #[command(group = clap::ArgGroup::new("size").args(["grid", "target_psnr", "target_flip", "time_budget"]))]
+#[command(group = clap::ArgGroup::new("input").args(["photo", "material_model"]).required(true))]
 pub struct PlanArgs {
+    /// A capture photo of the sample (examples/capture.toml; EXR linear, or PNG): the encoder
+    /// estimates the material from it (`plan::photo`).
+    #[arg(value_name = "IMAGE")]
+    pub photo: Option<PathBuf>,
+    /// The encoder model for IMAGE.
+    #[arg(long, value_enum, default_value_t = ModelKind::Ggx, requires = "photo")]
+    pub model: ModelKind,
     /// The estimated material as an analytic spec (e.g. "ggx:alpha=0.1,diffuse=0.2"); other specs
     /// (nbrdf:, merl:, rgl:) are fitted with GGX first.
-    #[arg(long = "material-model", value_name = "SPEC", required = true)]
-    pub material_model: String,
+    #[arg(long = "material-model", value_name = "SPEC")]
+    pub material_model: Option<String>,
     /// Instrument file (default: the shipped examples/gonio.toml).
     #[arg(long)]
     pub instrument: Option<PathBuf>,
@@ -148,7 +157,23 @@ fn level_of(n: usize, what: &str) -> Result<usize> {
 
 pub fn run_plan(args: PlanArgs) -> Result<()> {
     let instrument = crate::instrument::load_or_default(args.instrument.as_deref())?;
-    let estimate = estimate_for(&args.material_model).context("--material-model")?;
+    let t_estimate = std::time::Instant::now();
+    let estimate = match (&args.photo, &args.material_model) {
+        (Some(photo), _) => {
+            let e = super::photo::estimate_from_photo(photo, args.model)
+                .with_context(|| format!("estimating from {}", photo.display()))?;
+            println!(
+                "estimate from {} ({} model): {} in {:.2} s",
+                photo.display(),
+                args.model.name(),
+                e.spec(),
+                t_estimate.elapsed().as_secs_f64()
+            );
+            e.estimate
+        }
+        (None, Some(spec)) => estimate_for(spec).context("--material-model")?,
+        (None, None) => bail!("give a photo (IMAGE) or --material-model"),
+    };
     let targeted = args.target_psnr.is_some() || args.target_flip.is_some() || args.time_budget.is_some();
     let max_level = if targeted {
         level_of(args.max_grid, "--max-grid")?

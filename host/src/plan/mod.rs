@@ -395,11 +395,13 @@ impl Material for Reconstruction {
     fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
         let v = match self.lookup {
             Lookup::Slice => self.grid.eval(wi, wo),
-            Lookup::Query => self.grid.eval_with_lookup(wi, wo, &|k, wi, wo| match self.slices.get(k)? {
-                SliceWarp::Mixture(m) => m.invert_from(wi, wo),
-                SliceWarp::GgxVndf(_) => GgxVndf::new(wi, self.specular_alpha).invert(wo),
-                other => other.invert(wo),
-            }),
+            Lookup::Query => self
+                .grid
+                .eval_with_lookup(wi, wo, &|k, wi, wo| match self.slices.get(k)? {
+                    SliceWarp::Mixture(m) => m.invert_from(wi, wo),
+                    SliceWarp::GgxVndf(_) => GgxVndf::new(wi, self.specular_alpha).invert(wo),
+                    other => other.invert(wo),
+                }),
         };
         match self.interp {
             Interp::Linear => v,

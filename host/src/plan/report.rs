@@ -550,35 +550,34 @@ fn markdown(cfg: &ReportConfig, rows: &[Row], spacing: &[Row], stops: &[StopChoi
             r.brdf_log_err
         );
     }
-    let _ = writeln!(s, "\nFigures: `plan-flip.png`, `plan-logerr.png` (error vs gonio minutes), `plan-order.png` (motion minutes per strategy and order).");
+    let _ = writeln!(s, "\nFigures: `plan-flip.png`, `plan-logerr.png` (error vs gonio minutes, one panel per material), `plan-order.png` (motion minutes per strategy and order).");
     s
 }
 
 fn charts(dir: &Path, cfg: &ReportConfig, rows: &[Row]) -> Result<(), PlanError> {
-    let series = |metric: fn(&Row) -> f64| -> Vec<Series> {
+    // One panel per material (three strategies each): one chart with every material's curves had
+    // too many series to read.
+    let panels = |metric: fn(&Row) -> f64, label: &str| -> Result<(usize, usize, Vec<u8>), PlanError> {
+        let (w, h) = (520u32, 360u32);
         let mut out = Vec::new();
         for m in &cfg.materials {
+            let mut c = Chart::new(format!("{}: {label}", short(m)), "gonio minutes", label);
+            c.x_log = true;
+            c.y_log = true;
+            c.width = w;
+            c.height = h;
             for st in ["specular", "mixture", "uniform"] {
                 let pts: Vec<(f64, f64)> = rows
                     .iter()
                     .filter(|r| &r.material == m && r.strategy == st)
                     .map(|r| (r.gonio_seconds / 60.0, metric(r)))
                     .collect();
-                out.push(Series::new(format!("{} {st}", short(m)), pts, Mark::LineAndPoints));
+                c.series.push(Series::new(st, pts, Mark::LineAndPoints));
             }
+            out.push(crate::plot::draw_rgb(&c).map_err(|e| PlanError::Invalid(e.to_string()))?);
         }
-        out
+        Ok(super::tradeoff::tile(&out, w as usize, h as usize, 3))
     };
-    let mut flip = Chart::new("Render error vs measurement time", "gonio minutes", "mean FLIP");
-    flip.x_log = true;
-    flip.y_log = true;
-    flip.width = 1100;
-    flip.height = 800;
-    flip.series = series(|r| r.flip);
-    let mut log = flip.clone();
-    log.title = "BRDF error vs measurement time".into();
-    log.y_label = "brdf_log_err".into();
-    log.series = series(|r| r.brdf_log_err);
     let mut ord = Chart::new("Motion time per plan", "directions", "motion minutes");
     ord.x_log = true;
     ord.y_log = true;
@@ -589,12 +588,13 @@ fn charts(dir: &Path, cfg: &ReportConfig, rows: &[Row]) -> Result<(), PlanError>
         Series::new("optimised order", pick(|r| r.motion_seconds), Mark::Points),
         Series::new("lower bound", pick(|r| r.lower_bound_motion_seconds), Mark::Points),
     ];
-    for (chart, name) in [
-        (flip, "plan-flip.png"),
-        (log, "plan-logerr.png"),
-        (ord, "plan-order.png"),
-    ] {
-        crate::plot::write_png(&chart, &dir.join(name)).map_err(|e| PlanError::Invalid(e.to_string()))?;
+    let flip = panels(|r| r.flip, "mean FLIP")?;
+    let log = panels(|r| r.brdf_log_err, "brdf_log_err")?;
+    for ((w, h, rgb), name) in [(flip, "plan-flip.png"), (log, "plan-logerr.png")] {
+        let path = dir.join(name);
+        crate::render::image::write_rgb8_png(&path, w, h, rgb)
+            .map_err(|e| PlanError::Invalid(format!("{}: {e}", path.display())))?;
     }
+    crate::plot::write_png(&ord, &dir.join("plan-order.png")).map_err(|e| PlanError::Invalid(e.to_string()))?;
     Ok(())
 }

@@ -19,8 +19,8 @@ use crate::brdf::parse_material;
 use crate::encoder::dataset::capture_scene;
 use crate::encoder::infer::Encoder;
 use crate::encoder::ModelKind;
-use crate::render::render_with;
 use crate::plot::{Chart, Mark, Series};
+use crate::render::render_with;
 use crate::render::Scene;
 use gonio_shared::instrument::InstrumentConfig;
 use std::fmt::{self, Write};
@@ -425,6 +425,34 @@ fn command(cfg: &TradeoffConfig) -> String {
     c
 }
 
+/// A spec with its numbers at 3 significant digits, for tables.
+fn compact(spec: &str) -> String {
+    let mut out = String::new();
+    let mut num = String::new();
+    let flush = |num: &mut String, out: &mut String| {
+        if !num.is_empty() {
+            match num.parse::<f64>() {
+                Ok(v) if v != 0.0 && num.contains('.') => {
+                    let digits = (2 - v.abs().log10().floor() as i32).max(0) as usize;
+                    let _ = write!(out, "{v:.digits$}");
+                }
+                _ => out.push_str(num),
+            }
+            num.clear();
+        }
+    };
+    for c in spec.chars() {
+        if c.is_ascii_digit() || c == '.' || ((c == 'e' || c == '-') && !num.is_empty()) {
+            num.push(c);
+        } else {
+            flush(&mut num, &mut out);
+            out.push(c);
+        }
+    }
+    flush(&mut num, &mut out);
+    out
+}
+
 fn find<'a>(rows: &'a [TradeRow], material: &str, strategy: &str, level: usize) -> Option<&'a TradeRow> {
     rows.iter()
         .find(|r| r.material == material && r.strategy == strategy && r.level == level)
@@ -462,7 +490,7 @@ fn markdown(cfg: &TradeoffConfig, rows: &[TradeRow]) -> String {
             "| {} | {} | {} | {}x{} | {} | {:.1} | {:.2} | {:.2} | {:.4} | {:.2} | {:.4} | {:.4} |",
             short(&r.material),
             r.strategy,
-            r.estimate,
+            compact(&r.estimate),
             r.grid_n,
             r.grid_m,
             r.directions,
@@ -614,7 +642,7 @@ fn versus_uniform(s: &mut String, cfg: &TradeoffConfig, rows: &[TradeRow]) {
 }
 
 /// Panels side by side into one RGB image (`cols` per row, all panels the same size).
-fn tile(panels: &[Vec<u8>], w: usize, h: usize, cols: usize) -> (usize, usize, Vec<u8>) {
+pub(super) fn tile(panels: &[Vec<u8>], w: usize, h: usize, cols: usize) -> (usize, usize, Vec<u8>) {
     let rows = panels.len().div_ceil(cols.max(1));
     let (tw, th) = (w * cols, h * rows);
     let mut out = vec![255u8; tw * th * 3];
@@ -780,6 +808,14 @@ mod tests {
         // The preset's levels nest (8x4 inside 8x8, 4x4 inside 8x4).
         super::super::check_grids(&cfg.grids).expect("nested");
         assert_eq!(paper_psnr("nbrdf:red-fabric2", (8, 4)), Some(39.88));
+    }
+
+    #[test]
+    fn compact_rounds_the_numbers_of_a_spec() {
+        assert_eq!(
+            compact("ggx:alpha=0.0156064,diffuse=30.8368/5.3386/0,specular=1"),
+            "ggx:alpha=0.0156,diffuse=30.8/5.34/0,specular=1"
+        );
     }
 
     #[test]
