@@ -160,8 +160,8 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
     let t_estimate = std::time::Instant::now();
     let estimate = match (&args.photo, &args.material_model) {
         (Some(photo), _) => {
-            let e = super::photo::estimate_from_photo(photo, args.model)
-                .with_context(|| format!("estimating from {}", photo.display()))?;
+            // The photo error names the file already.
+            let e = super::photo::estimate_from_photo(photo, args.model)?;
             println!(
                 "estimate from {} ({} model): {} in {:.2} s",
                 photo.display(),
