@@ -14,7 +14,7 @@ fn plan_bytes(level: usize, bound: bool) -> (usize, Vec<u8>) {
     let plan = planner
         .plan(&PlanConfig {
             strategy: Strategy::Mixture,
-            max_level: level,
+            grids: gonio::plan::square_grids(level),
             bound,
             ..PlanConfig::default()
         })

@@ -44,6 +44,8 @@ enum Command {
     Plan(gonio::plan::cli::PlanArgs),
     /// Accuracy vs time: strategies, levels, stopping rules, spacings and orders on a set of materials.
     PlanReport(gonio::plan::cli::PlanReportArgs),
+    /// Accuracy vs measurement time per strategy and level (adaptive, adaptive-true, specular, uniform); --preset table1.
+    Tradeoff(gonio::plan::cli::TradeoffArgs),
     /// Run the virtual gonio (real firmware, simulated HAL) on a pseudo-terminal; prints its path.
     Sim(measure_cli::SimArgs),
     /// Stream a plan file to a gonio (or the virtual one), journal and collect the measurements.
@@ -105,6 +107,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Envmap(cmd) => gonio::render::cli::run_envmap(cmd),
         Command::Plan(args) => gonio::plan::cli::run_plan(args),
         Command::PlanReport(args) => gonio::plan::cli::run_plan_report(args),
+        Command::Tradeoff(args) => gonio::plan::cli::run_tradeoff(args),
         Command::Sim(args) => measure_cli::run_sim(args),
         Command::Measure(args) => measure_cli::run_measure(args),
         Command::Dataset(args) => gonio::encoder::cli::run_dataset(args),

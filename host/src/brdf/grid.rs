@@ -302,6 +302,25 @@ impl MeasurementGrid {
     }
 }
 
+/// Where slice k looks wo up: `u_of(k, wi, wo)` with wi and wo rotated to phi_i = 0.
+pub type SliceLookup<'a> = dyn Fn(usize, DVec3, DVec3) -> Option<DVec2> + 'a;
+
+impl MeasurementGrid {
+    /// `eval` with another u lookup per slice (the planner's lookup through the query's own wi, as
+    /// RGL's files do); `eval` itself maps wo through slice k's own warp.
+    pub fn eval_with_lookup(&self, wi: DVec3, wo: DVec3, u_of: &SliceLookup<'_>) -> DVec3 {
+        if wi.z <= 0.0 || wo.z <= 0.0 {
+            return DVec3::ZERO;
+        }
+        let phi_i = phi_of(wi);
+        let wi_local = rotate_z(wi, -phi_i);
+        let wo = rotate_z(wo, -phi_i);
+        self.eval_local(theta_of(wi), &|k: usize| {
+            u_of(k, wi_local, wo).and_then(|u| self.bilinear(k, u))
+        })
+    }
+}
+
 impl Material for MeasurementGrid {
     fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
         if wi.z <= 0.0 || wo.z <= 0.0 {
@@ -309,7 +328,13 @@ impl Material for MeasurementGrid {
         }
         let phi_i = phi_of(wi);
         let wo = rotate_z(wo, -phi_i);
-        let t = theta_of(wi);
+        self.eval_local(theta_of(wi), &|k: usize| self.slice_value(k, wo))
+    }
+}
+
+impl MeasurementGrid {
+    /// Linear in theta_i between the bracketing slices' values (`value(k)`).
+    fn eval_local(&self, t: f64, value: &dyn Fn(usize) -> Option<DVec3>) -> DVec3 {
         let last = self.theta_i.len() - 1;
         // Bracketing slices and the weight of the upper one; clamped (no extrapolation) outside.
         let k0 = self
@@ -326,7 +351,7 @@ impl Material for MeasurementGrid {
         let (mut acc, mut wsum) = (DVec3::ZERO, 0.0);
         for (k, w) in [(k0, 1.0 - w1), (k1, w1)] {
             if w > 0.0 {
-                if let Some(v) = self.slice_value(k, wo) {
+                if let Some(v) = value(k) {
                     acc += w * v;
                     wsum += w;
                 }

@@ -2,18 +2,28 @@
 //! written atomically and only after the plan has passed its re-simulation check.
 
 use super::report::{self, ReportConfig, Scorer};
+use super::tradeoff;
 use super::{estimate_for, Plan, PlanConfig, PlanError, Planner, Spacing, Strategy, MAX_LEVEL};
+use crate::encoder::ModelKind;
 use anyhow::{bail, Context, Result};
 use gonio_shared::instrument::AXES;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
 #[command(group = clap::ArgGroup::new("size").args(["grid", "target_psnr", "target_flip", "time_budget"]))]
+#[command(group = clap::ArgGroup::new("input").args(["photo", "material_model"]).required(true))]
 pub struct PlanArgs {
+    /// A capture photo of the sample (examples/capture.toml; EXR linear, or PNG): the encoder
+    /// estimates the material from it (`plan::photo`).
+    #[arg(value_name = "IMAGE")]
+    pub photo: Option<PathBuf>,
+    /// The encoder model for IMAGE.
+    #[arg(long, value_enum, default_value_t = ModelKind::Ggx, requires = "photo")]
+    pub model: ModelKind,
     /// The estimated material as an analytic spec (e.g. "ggx:alpha=0.1,diffuse=0.2"); other specs
     /// (nbrdf:, merl:, rgl:) are fitted with GGX first.
-    #[arg(long = "material-model", value_name = "SPEC", required = true)]
-    pub material_model: String,
+    #[arg(long = "material-model", value_name = "SPEC")]
+    pub material_model: Option<String>,
     /// Instrument file (default: the shipped examples/gonio.toml).
     #[arg(long)]
     pub instrument: Option<PathBuf>,
@@ -66,6 +76,47 @@ pub struct PlanReportArgs {
     pub output: PathBuf,
 }
 
+#[derive(clap::Args)]
+pub struct TradeoffArgs {
+    /// Material specs (repeatable); default: four MERL fits and two analytic lobes.
+    #[arg(long = "material", value_name = "SPEC")]
+    pub materials: Vec<String>,
+    /// A named run: table1 (the paper's Table 1) or heldout (the encoder's 15 held-out MERL materials).
+    #[arg(long, value_enum, conflicts_with = "materials")]
+    pub preset: Option<tradeoff::Preset>,
+    #[arg(long)]
+    pub instrument: Option<PathBuf>,
+    /// Nested levels, N x M outgoing per incoming theta, each dividing the next: e.g. 2x2,4x4,8x4,8x8.
+    /// Default 2x2,4x4,8x8,16x16 (table1: 2x2,4x4,8x4,8x8).
+    #[arg(long, value_parser = tradeoff::parse_grids)]
+    pub levels: Option<tradeoff::Grids>,
+    /// Strategies (repeatable); default all four.
+    #[arg(long = "strategy", value_enum)]
+    pub strategies: Vec<tradeoff::TradeStrategy>,
+    #[arg(long, default_value_t = 8)]
+    pub incoming: usize,
+    /// How the reconstruction finds u between incoming slices.
+    #[arg(long, value_enum, default_value_t = super::Lookup::Query)]
+    pub lookup: super::Lookup,
+    /// What the reconstruction interpolates between nodes.
+    #[arg(long, value_enum, default_value_t = super::Interp::Log)]
+    pub interp: super::Interp,
+    /// Point-light render side in pixels (default 128; table1: 256).
+    #[arg(long)]
+    pub size: Option<usize>,
+    /// Environment-lit scene (its environment map is read relative to it).
+    #[arg(long, default_value = "examples/sphere-sky.toml")]
+    pub env_scene: PathBuf,
+    /// Environment render side in pixels.
+    #[arg(long, default_value_t = 256)]
+    pub env_size: usize,
+    /// Environment samples per pixel.
+    #[arg(long, default_value_t = 64)]
+    pub env_spp: u32,
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
 /// Seconds from "90", "90s", "15m", "2h", "1h30m", "1.5h".
 pub fn parse_duration(s: &str) -> Result<f64, String> {
     let bad = || format!("'{s}' is not a duration (e.g. 90s, 15m, 2h, 1h30m)");
@@ -106,7 +157,23 @@ fn level_of(n: usize, what: &str) -> Result<usize> {
 
 pub fn run_plan(args: PlanArgs) -> Result<()> {
     let instrument = crate::instrument::load_or_default(args.instrument.as_deref())?;
-    let estimate = estimate_for(&args.material_model).context("--material-model")?;
+    let t_estimate = std::time::Instant::now();
+    let estimate = match (&args.photo, &args.material_model) {
+        (Some(photo), _) => {
+            // The photo error names the file already.
+            let e = super::photo::estimate_from_photo(photo, args.model)?;
+            println!(
+                "estimate from {} ({} model): {} in {:.2} s",
+                photo.display(),
+                args.model.name(),
+                e.spec(),
+                t_estimate.elapsed().as_secs_f64()
+            );
+            e.estimate
+        }
+        (None, Some(spec)) => estimate_for(spec).context("--material-model")?,
+        (None, None) => bail!("give a photo (IMAGE) or --material-model"),
+    };
     let targeted = args.target_psnr.is_some() || args.target_flip.is_some() || args.time_budget.is_some();
     let max_level = if targeted {
         level_of(args.max_grid, "--max-grid")?
@@ -127,8 +194,9 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
         strategy: args.strategy,
         spacing: args.spacing,
         k: args.incoming,
-        max_level,
+        grids: super::square_grids(max_level),
         bound: true,
+        ..PlanConfig::default()
     };
     let planner = Planner::new(instrument, estimate.clone())?;
     let t0 = std::time::Instant::now();
@@ -188,7 +256,7 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
     }
     let l = plan.levels.last().context("empty plan")?;
     println!(
-        "{} directions ({}x{} x {} incoming, {} strategy, {} spacing; {rule}); dropped: {} below horizon, {} blocked, {} limits",
+        "{} directions ({}x{} x {} incoming, {} strategy, {} spacing; {rule}); dropped: {} below horizon, {} blocked, {} limits; nudged {}",
         wire.len(),
         l.n,
         l.m,
@@ -197,7 +265,8 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
         config.spacing,
         plan.dropped.below_horizon,
         plan.dropped.blocked,
-        plan.dropped.limit
+        plan.dropped.limit,
+        plan.dropped.nudged
     );
     println!(
         "time {:.1} min (motion {:.1} min); raster order {:.1} min (motion {:.1}); motion lower bound {:.1} min; raster/optimised motion {:.2}x, optimised/bound {:.3}x; planned in {:.2} s",
@@ -272,6 +341,59 @@ pub fn run_plan_report(args: PlanReportArgs) -> Result<()> {
     }
     let bar = indicatif::ProgressBar::new((cfg.materials.len() * 4) as u64);
     let md = report::run(&cfg, &instrument, &args.output, &|line| {
+        bar.println(line);
+        bar.inc(1);
+    })?;
+    bar.finish_and_clear();
+    print!("{md}");
+    Ok(())
+}
+
+pub fn run_tradeoff(args: TradeoffArgs) -> Result<()> {
+    let instrument = crate::instrument::load_or_default(args.instrument.as_deref())?;
+    let mut cfg = match args.preset {
+        Some(p) => tradeoff::TradeoffConfig::preset(p),
+        None => tradeoff::TradeoffConfig::default(),
+    };
+    if !args.materials.is_empty() {
+        cfg.materials = args.materials;
+    }
+    if let Some(levels) = args.levels {
+        cfg.grids = levels.0;
+    }
+    if !args.strategies.is_empty() {
+        cfg.strategies = args.strategies;
+        cfg.strategies.dedup();
+    }
+    cfg.k = args.incoming;
+    cfg.lookup = args.lookup;
+    cfg.interp = args.interp;
+    if let Some(size) = args.size {
+        cfg.size = size;
+    }
+    cfg.env_size = args.env_size;
+    cfg.env_spp = args.env_spp;
+    for (name, v) in [("--size", cfg.size), ("--env-size", cfg.env_size)] {
+        if !(16..=1024).contains(&v) {
+            bail!("{name} {v} must be in 16..=1024");
+        }
+    }
+    if !(1..=4096).contains(&cfg.env_spp) {
+        bail!("--env-spp {} must be in 1..=4096", cfg.env_spp);
+    }
+    let env = crate::render::Scene::load(&args.env_scene).with_context(|| "--env-scene".to_string())?;
+    if env.environment.is_none() {
+        bail!(
+            "--env-scene {}: the scene has no environment light",
+            args.env_scene.display()
+        );
+    }
+    let steps = cfg.materials.len() * cfg.strategies.len() * cfg.grids.len();
+    let bar = indicatif::ProgressBar::new(steps as u64).with_style(
+        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} levels scored, {elapsed} (eta {eta})")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let md = tradeoff::run(&cfg, &instrument, env, &args.output, &|line| {
         bar.println(line);
         bar.inc(1);
     })?;

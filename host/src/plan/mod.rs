@@ -2,13 +2,25 @@
 //!
 //! * Incoming: 1 phi x K theta, spaced by `Spacing` (cosine steps as the grid's default, equal angle
 //!   steps, or RGL's equal steps in the GGX projected area sigma).
-//! * Outgoing: per incoming theta, nested levels of N x N nodes (N = 2, 4, 8, ...) in u-space
-//!   (`NodeLayout::Nested`: u = (i / N, j / N)), through the slice warp of the chosen `Strategy`.
-//!   Level L's nodes are level L+1's even nodes, so a scan can stop after any level and keep all it
-//!   measured. Nodes that land on the same direction (the pole u.x = 0 of every warp) are measured once.
-//! * Unreachable rule: a node whose direction is below the horizon, inside the arms' blocked cone or
-//!   beyond an axis limit is dropped (counted by reason) and, in the reconstruction, takes the value
-//!   of the nearest measured node of its slice (`MeasurementGrid::fill_from_nearest`).
+//! * Outgoing: per incoming theta, nested levels of N x M nodes in u-space (`NodeLayout::Nested`:
+//!   u = (i / N, j / M)), through the slice warp of the chosen `Strategy`. By default the levels are
+//!   square, N = M = 2, 4, 8, ...; any list works whose every level's N and M divide the next
+//!   level's (e.g. the paper's 2x2, 4x4, 8x4, 8x8): then each level's nodes are nodes of the next,
+//!   so a scan can stop after any level and keep all it measured. Nodes that land on the same
+//!   direction (the pole u.x = 0 of every warp) are measured once.
+//! * Unreachable rule: a node whose warp gives no direction (below the horizon) is moved toward the
+//!   pole in u, `U_NUDGE_STEPS` steps of up to half a cell of the finest grid in all, and dropped
+//!   if it still has none (the mixture's table keeps a small floor density over the base warp's
+//!   below-horizon region, which a node may hit; the pure-specular warp's large below-horizon
+//!   region, ~27% of a rough lobe's square, stays dropped, as in the paper). A node
+//!   whose direction the instrument cannot reach (inside the arms' blocked cone around wi, beyond an
+//!   axis limit, or under the IK's horizon margin) is nudged to the nearest reachable direction on
+//!   two paths, away from wi in the (wi, wo) plane and toward the normal, in `NUDGE_STEP` steps up
+//!   to `NUDGE_MAX` (counted in `Dropped::nudged`; its value stands for the node's); only if both
+//!   fail is it dropped (counted by reason). Dropped nodes take, in the reconstruction, the value of
+//!   the nearest measured node of its slice (`MeasurementGrid::fill_from_nearest`). Nudging keeps
+//!   the direction count of every warp that maps the whole square onto the hemisphere (mixture,
+//!   uniform) equal at equal grids, so strategies compare at the same cost.
 //! * Order and time: `order` (NN + 2-opt + Or-opt within each level, after the previous level's last
 //!   pose), timed by replaying the firmware's IK and the shared motion profile.
 
@@ -17,12 +29,13 @@ pub mod file;
 pub mod order;
 pub mod photo;
 pub mod report;
+pub mod tradeoff;
 
 use crate::brdf::analytic::Ggx;
 use crate::brdf::frame::{from_spherical, phi_of, theta_of};
 use crate::brdf::grid::{incident_thetas, MeasurementGrid, NodeLayout, THETA_I_MAX};
 use crate::brdf::spec::Analytic;
-use crate::brdf::warp::{MixtureWarp, SliceWarp, Warp, WarpKind};
+use crate::brdf::warp::{GgxVndf, MixtureWarp, SliceWarp, Warp, WarpKind};
 use crate::brdf::Material;
 use glam::{DVec2, DVec3};
 use gonio_shared::instrument::InstrumentConfig;
@@ -39,6 +52,11 @@ pub const PLAN_ALPHA_MIN: f64 = 0.01;
 pub const MIXTURE_TABLE_RES: usize = 48;
 /// Most levels a plan can have (N = 2^6 = 64).
 pub const MAX_LEVEL: usize = 6;
+/// Largest N or M of a level.
+pub const MAX_GRID: usize = 1 << MAX_LEVEL;
+/// Step and reach of the unreachable-node nudge (radians): 0.5 deg steps up to 10 deg.
+pub const NUDGE_STEP: f64 = 0.5 * std::f64::consts::PI / 180.0;
+pub const NUDGE_MAX: f64 = 10.0 * std::f64::consts::PI / 180.0;
 
 #[derive(Debug, thiserror::Error)]
 pub enum PlanError {
@@ -126,6 +144,47 @@ impl Estimate {
     }
 }
 
+/// How a reconstruction finds a query's u in the two bracketing incoming slices.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Lookup {
+    /// Through each slice's own warp (built for the slice's wi).
+    Slice,
+    /// Through the warp re-centred on the query's own wi, in both slices (RGL's files do this): a
+    /// lobe that moves with wi sits at the same u in both, so interpolating between slices does not
+    /// split a peak into two half-peaks at the slices' mirror directions. The uniform warp does not
+    /// depend on wi: there both lookups agree.
+    Query,
+}
+
+impl fmt::Display for Lookup {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Lookup::Slice => "slice",
+            Lookup::Query => "query",
+        })
+    }
+}
+
+/// What the reconstruction interpolates between nodes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Interp {
+    /// The measured values f.
+    Linear,
+    /// log(1 + f) per channel, mapped back with exp - 1: a node on a sharp peak (f ~ 100s) then
+    /// decays toward its neighbours geometrically instead of spreading a linear ramp of peak-sized
+    /// values over the whole cell, which at coarse levels covers much of the hemisphere.
+    Log,
+}
+
+impl fmt::Display for Interp {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Interp::Linear => "linear",
+            Interp::Log => "log",
+        })
+    }
+}
+
 /// What to plan.
 #[derive(Clone, Debug)]
 pub struct PlanConfig {
@@ -133,11 +192,15 @@ pub struct PlanConfig {
     pub spacing: Spacing,
     /// Number of incoming elevations.
     pub k: usize,
-    /// Levels 1..=max_level, N = 2^level.
-    pub max_level: usize,
+    /// The levels' outgoing grids (N, M), coarsest first; each level's N and M divide the next's.
+    pub grids: Vec<(usize, usize)>,
     /// Compute the motion lower bound (O(n^2) per level; a scan does not need it). Without it the
     /// levels' `lower_bound_motion_seconds` are NaN.
     pub bound: bool,
+    /// The reconstruction's u lookup.
+    pub lookup: Lookup,
+    /// The reconstruction's interpolated quantity.
+    pub interp: Interp,
 }
 
 impl Default for PlanConfig {
@@ -147,10 +210,44 @@ impl Default for PlanConfig {
             // Equal angle steps beat cosine and RGL steps on every material of the report.
             spacing: Spacing::Angle,
             k: crate::brdf::grid::DEFAULT_K,
-            max_level: 4,
+            grids: square_grids(4),
             bound: true,
+            lookup: Lookup::Query,
+            interp: Interp::Log,
         }
     }
+}
+
+/// Square levels 2x2, 4x4, ..., 2^max_level x 2^max_level.
+pub fn square_grids(max_level: usize) -> Vec<(usize, usize)> {
+    (1..=max_level).map(|l| (1usize << l, 1usize << l)).collect()
+}
+
+/// Checks a level list: 1..=MAX_LEVEL levels, 2 <= N <= MAX_GRID, 1 <= M <= MAX_GRID, and every
+/// level's N and M divide the next level's (so the levels nest) with more nodes than it.
+pub fn check_grids(grids: &[(usize, usize)]) -> Result<(), PlanError> {
+    if grids.is_empty() || grids.len() > MAX_LEVEL {
+        return Err(PlanError::Invalid(format!(
+            "{} levels, expected 1..={MAX_LEVEL}",
+            grids.len()
+        )));
+    }
+    for &(n, m) in grids {
+        if !(2..=MAX_GRID).contains(&n) || !(1..=MAX_GRID).contains(&m) {
+            return Err(PlanError::Invalid(format!(
+                "grid {n}x{m}: N must be in 2..={MAX_GRID} and M in 1..={MAX_GRID}"
+            )));
+        }
+    }
+    for w in grids.windows(2) {
+        let ((n0, m0), (n1, m1)) = (w[0], w[1]);
+        if n1 % n0 != 0 || m1 % m0 != 0 || n1 * m1 <= n0 * m0 {
+            return Err(PlanError::Invalid(format!(
+                "grid {n1}x{m1} does not contain {n0}x{m0}: each level's N and M must divide the next's"
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// One direction of the plan, in execution order.
@@ -158,7 +255,7 @@ impl Default for PlanConfig {
 pub struct PlannedDirection {
     /// First level that contains it (1-based).
     pub level: usize,
-    /// Slice and node at the finest level (i, j in 0..2^max_level).
+    /// Slice and node at the finest level (i in 0..N, j in 0..M of the last grid).
     pub k: usize,
     pub i: usize,
     pub j: usize,
@@ -213,12 +310,53 @@ pub struct PlanSummary {
     pub lower_bound_motion_seconds: f64,
 }
 
-/// Nodes dropped by the unreachable rule, by reason (unique directions).
+/// Nodes dropped by the unreachable rule, by reason, and nodes nudged (unique directions).
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct Dropped {
     pub below_horizon: usize,
     pub blocked: usize,
     pub limit: usize,
+    /// Unreachable nodes measured at a nudged direction instead (not dropped).
+    pub nudged: usize,
+}
+
+/// Steps of the u-space nudge of a node whose warp gives no direction.
+pub const U_NUDGE_STEPS: usize = 8;
+
+/// The warp's direction at `u`, or, if it has none, at the first of `U_NUDGE_STEPS` points from
+/// u toward the pole (u.x decreasing) up to half a cell of a grid with `fine_n` columns.
+fn sample_or_nudge(warp: &SliceWarp, u: DVec2, fine_n: usize) -> Option<DVec3> {
+    warp.sample(u).or_else(|| {
+        (1..=U_NUDGE_STEPS).find_map(|s| {
+            let dx = 0.5 / fine_n as f64 * s as f64 / U_NUDGE_STEPS as f64;
+            warp.sample(DVec2::new((u.x - dx).max(0.0), u.y))
+        })
+    })
+}
+
+/// The unreachable rule's nudge: the nearest reachable direction to `wo` on two paths (away from
+/// `wi` in their common plane, out of the blocked cone; toward the normal, inside the limits and the
+/// horizon margin), `NUDGE_STEP` at a time up to `NUDGE_MAX`.
+fn nudge(kin: &Kinematics<f64>, wi: DVec3, wo: DVec3) -> Option<(DVec3, Candidates)> {
+    // Axis of the rotation away from wi; wo parallel to wi (the pole at normal incidence) has no
+    // plane with it, so take the one through the normal and x (any plane serves: isotropy).
+    let away = wi.cross(wo).try_normalize().unwrap_or(DVec3::Y);
+    // Toward the normal: rotate about z x wo; at the pole wo is the normal already.
+    let down = wo.cross(DVec3::Z).try_normalize();
+    let steps = (NUDGE_MAX / NUDGE_STEP).round() as usize;
+    for s in 1..=steps {
+        let angle = s as f64 * NUDGE_STEP;
+        let tries = [
+            Some(glam::DQuat::from_axis_angle(away, angle) * wo),
+            down.map(|d| glam::DQuat::from_axis_angle(d, angle) * wo),
+        ];
+        for w in tries.into_iter().flatten() {
+            if let Ok(c) = Candidates::of(kin, wi, w) {
+                return Some((w, c));
+            }
+        }
+    }
+    None
 }
 
 /// A complete plan.
@@ -233,6 +371,43 @@ pub struct Plan {
     /// Finest-level node (k, i, j) -> index in `directions`, for every node that is measured.
     node_dir: HashMap<(usize, usize, usize), usize>,
     pub settle_exposure_seconds: f64,
+    /// The alpha of the pure-specular slice warps (to re-centre them on a query's wi).
+    specular_alpha: f64,
+}
+
+/// A level's measurements as a material: the measurement grid, read through `Lookup`.
+#[derive(Clone, Debug)]
+pub struct Reconstruction {
+    grid: MeasurementGrid,
+    slices: Vec<SliceWarp>,
+    lookup: Lookup,
+    interp: Interp,
+    specular_alpha: f64,
+}
+
+impl Reconstruction {
+    pub fn grid(&self) -> &MeasurementGrid {
+        &self.grid
+    }
+}
+
+impl Material for Reconstruction {
+    fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
+        let v = match self.lookup {
+            Lookup::Slice => self.grid.eval(wi, wo),
+            Lookup::Query => self
+                .grid
+                .eval_with_lookup(wi, wo, &|k, wi, wo| match self.slices.get(k)? {
+                    SliceWarp::Mixture(m) => m.invert_from(wi, wo),
+                    SliceWarp::GgxVndf(_) => GgxVndf::new(wi, self.specular_alpha).invert(wo),
+                    other => other.invert(wo),
+                }),
+        };
+        match self.interp {
+            Interp::Linear => v,
+            Interp::Log => v.map(f64::exp_m1),
+        }
+    }
 }
 
 /// The planner: an instrument and an estimate.
@@ -278,16 +453,11 @@ impl Planner {
         if config.k == 0 || config.k > 64 {
             return Err(PlanError::Invalid(format!("incoming count {} not in 1..=64", config.k)));
         }
-        if config.max_level == 0 || config.max_level > MAX_LEVEL {
-            return Err(PlanError::Invalid(format!(
-                "level {} not in 1..={MAX_LEVEL}",
-                config.max_level
-            )));
-        }
+        check_grids(&config.grids)?;
         let cfg = *self.kin.config();
         let thetas = spaced_thetas(config.spacing, config.k, self.estimate.alpha());
         let slices: Vec<SliceWarp> = thetas.iter().map(|&t| self.slice_warp(config.strategy, t)).collect();
-        let fine = 1usize << config.max_level;
+        let (fine_n, fine_m) = *config.grids.last().expect("checked non-empty");
         let settle_exposure = cfg.settle_ms as f64 * 1e-3 + cfg.exposure_us as f64 * 1e-6;
 
         // Unique directions per level, in generation (raster) order: k, then j, then i.
@@ -296,20 +466,20 @@ impl Planner {
         let mut gen: Vec<(usize, usize, usize, usize, DVec3, DVec3, Candidates)> = Vec::new();
         let mut level_ranges = Vec::new();
         let mut dropped = Dropped::default();
-        for level in 1..=config.max_level {
-            let n = 1usize << level;
-            let stride = fine / n;
+        for (level0, &(n, m)) in config.grids.iter().enumerate() {
+            let level = level0 + 1;
+            let (stride_i, stride_j) = (fine_n / n, fine_m / m);
             let start = gen.len();
             for (k, warp) in slices.iter().enumerate() {
                 let wi = from_spherical(thetas[k], 0.0);
-                for j in 0..n {
+                for j in 0..m {
                     for i in 0..n {
-                        let key = (k, i * stride, j * stride);
+                        let key = (k, i * stride_i, j * stride_j);
                         if node_dir_gen.contains_key(&key) {
                             continue;
                         }
-                        let u = DVec2::new(i as f64 / n as f64, j as f64 / n as f64);
-                        let Some(wo) = warp.sample(u) else {
+                        let u = DVec2::new(i as f64 / n as f64, j as f64 / m as f64);
+                        let Some(wo) = sample_or_nudge(warp, u, fine_n) else {
                             dropped.below_horizon += 1;
                             node_dir_gen.insert(key, None);
                             continue;
@@ -326,23 +496,30 @@ impl Planner {
                                 gen.push((level, k, key.1, key.2, wi, wo, c));
                                 Some(gen.len() - 1)
                             }
-                            Err(reason) => {
-                                match reason {
-                                    Unreachable::BelowHorizon { .. } | Unreachable::NotFinite => {
-                                        dropped.below_horizon += 1
-                                    }
-                                    Unreachable::Blocked => dropped.blocked += 1,
-                                    Unreachable::Limit(_) => dropped.limit += 1,
+                            Err(reason) => match nudge(&self.kin, wi, wo) {
+                                Some((nudged, c)) => {
+                                    dropped.nudged += 1;
+                                    gen.push((level, k, key.1, key.2, wi, nudged, c));
+                                    Some(gen.len() - 1)
                                 }
-                                None
-                            }
+                                None => {
+                                    match reason {
+                                        Unreachable::BelowHorizon { .. } | Unreachable::NotFinite => {
+                                            dropped.below_horizon += 1
+                                        }
+                                        Unreachable::Blocked => dropped.blocked += 1,
+                                        Unreachable::Limit(_) => dropped.limit += 1,
+                                    }
+                                    None
+                                }
+                            },
                         };
                         seen.insert(dkey, entry);
                         node_dir_gen.insert(key, entry);
                     }
                 }
             }
-            level_ranges.push((level, n, start, gen.len()));
+            level_ranges.push((level, n, m, start, gen.len()));
         }
 
         // Order within each level; time both orders by replaying the IK.
@@ -354,7 +531,7 @@ impl Planner {
         let mut cur_c = rest_c.clone();
         let (mut cum, mut cum_raster) = (0.0, 0.0);
         let mut directions: Vec<PlannedDirection> = Vec::with_capacity(gen.len());
-        for &(level, n, a, b) in &level_ranges {
+        for &(level, n, m, a, b) in &level_ranges {
             let items: Vec<Candidates> = gen[a..b].iter().map(|g| g.6.clone()).collect();
             let perm = order::optimise(&cfg, &cur_c, &items);
             let pairs: Vec<(DVec3, DVec3)> = perm.iter().map(|&p| (gen[a + p].4, gen[a + p].5)).collect();
@@ -415,7 +592,7 @@ impl Planner {
             levels.push(LevelSummary {
                 level,
                 n,
-                m: n,
+                m,
                 cumulative_directions: directions.len(),
                 first,
                 count: items.len(),
@@ -444,6 +621,7 @@ impl Planner {
             dropped,
             node_dir,
             settle_exposure_seconds: settle_exposure,
+            specular_alpha: self.estimate.alpha().max(PLAN_ALPHA_MIN),
         })
     }
 }
@@ -498,7 +676,7 @@ impl Plan {
 
     /// Reconstruct level `level` from the measured values (indexed like `directions`; only the
     /// prefix up to the level is read). Unmeasured nodes take their nearest measured neighbour's value.
-    pub fn reconstruct(&self, level: usize, values: &[DVec3]) -> Result<MeasurementGrid, PlanError> {
+    pub fn reconstruct(&self, level: usize, values: &[DVec3]) -> Result<Reconstruction, PlanError> {
         let summary = self
             .level(level)
             .ok_or_else(|| PlanError::Invalid(format!("no level {level}")))?;
@@ -509,33 +687,44 @@ impl Plan {
                 values.len()
             )));
         }
-        let n = summary.n;
-        let stride = (1usize << self.config.max_level) / n;
+        let (n, m) = (summary.n, summary.m);
+        let (fine_n, fine_m) = self.config.grids.last().copied().unwrap_or((n, m));
+        let (stride_i, stride_j) = (fine_n / n, fine_m / m);
         let k_count = self.thetas.len();
-        let cells = k_count * n * n;
+        let cells = k_count * n * m;
         let mut grid = MeasurementGrid::from_slices(
             self.slices.clone(),
             NodeLayout::Nested,
             self.thetas.clone(),
             n,
-            n,
+            m,
             vec![DVec3::ZERO; cells],
             vec![false; cells],
         )?;
         for k in 0..k_count {
-            for j in 0..n {
+            for j in 0..m {
                 for i in 0..n {
                     let v = self
                         .node_dir
-                        .get(&(k, i * stride, j * stride))
+                        .get(&(k, i * stride_i, j * stride_j))
                         .filter(|&&d| d < limit)
-                        .map(|&d| values[d]);
+                        .map(|&d| match self.config.interp {
+                            Interp::Linear => values[d],
+                            // Guard: a negative reading (noise) has no log; clamp it at 0.
+                            Interp::Log => values[d].max(DVec3::ZERO).map(f64::ln_1p),
+                        });
                     grid.set_node(k, i, j, v);
                 }
             }
         }
         grid.fill_from_nearest();
-        Ok(grid)
+        Ok(Reconstruction {
+            grid,
+            slices: self.slices.clone(),
+            lookup: self.config.lookup,
+            interp: self.config.interp,
+            specular_alpha: self.specular_alpha,
+        })
     }
 
     /// Measure `material` at every planned direction (the virtual scan without effects).

@@ -15,6 +15,7 @@ use super::{estimate_for, Estimate, Plan, PlanConfig, PlanError, Planner, Spacin
 use crate::brdf::fit::fit_directions;
 use crate::brdf::{parse_material, Material};
 use crate::plot::{Chart, Mark, Series};
+use crate::render::brdf_sampling::BrdfSampler;
 use crate::render::metrics::{compare, Comparison};
 use crate::render::{render_plain, Image, Scene};
 use glam::DVec3;
@@ -65,9 +66,11 @@ impl Default for ReportConfig {
     }
 }
 
-/// Renders a material in the capture scene.
+/// Renders a material in the capture scene (point light) and, if given, in an environment-lit
+/// scene; scores BRDF-space error over the fit's direction set.
 pub struct Scorer {
     scene: Scene,
+    env: Option<Scene>,
     pairs: Vec<(DVec3, DVec3)>,
 }
 
@@ -79,13 +82,31 @@ impl Scorer {
         scene.camera.height = size;
         Ok(Self {
             scene,
+            env: None,
             pairs: fit_directions(),
         })
+    }
+
+    /// Also render under `env` (e.g. `examples/sphere-sky.toml`), with its own camera and settings.
+    pub fn with_env(mut self, env: Scene) -> Self {
+        self.env = Some(env);
+        self
     }
 
     pub fn render(&mut self, material: Box<dyn Material>) -> Image {
         self.scene.material = material;
         render_plain(&self.scene, &self.scene.settings, &|| {})
+    }
+
+    /// The environment render, importance-sampled as `sampler_spec` would be. Give the truth and
+    /// its reconstructions the same `sampler_spec` (and the scene its fixed seed): then every
+    /// render draws the same random numbers and the Monte Carlo noise largely cancels in the
+    /// comparison, leaving the BRDF difference.
+    pub fn render_env(&mut self, material: Box<dyn Material>, sampler_spec: &str) -> Option<Image> {
+        let env = self.env.as_mut()?;
+        env.material = material;
+        env.sampler = BrdfSampler::for_spec(sampler_spec);
+        Some(render_plain(env, &env.settings, &|| {}))
     }
 
     pub fn log_err(&self, truth: &dyn Material, test: &dyn Material) -> f64 {
@@ -251,7 +272,7 @@ pub fn stopping(rows: &[Row], target: f64) -> Option<StopChoice> {
 }
 
 /// CSV with the struct's fields as columns, in declaration order (serde's field order).
-fn csv<T: serde::Serialize>(rows: &[T]) -> Result<Vec<u8>, PlanError> {
+pub(super) fn csv<T: serde::Serialize>(rows: &[T]) -> Result<Vec<u8>, PlanError> {
     let mut out = String::new();
     for (n, r) in rows.iter().enumerate() {
         let v = serde_json::to_value(r).map_err(|e| PlanError::Invalid(e.to_string()))?;
@@ -318,7 +339,7 @@ fn fields_in_order<T: serde::Serialize>(r: &T) -> Result<Vec<String>, PlanError>
     Ok(keys)
 }
 
-fn write(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), PlanError> {
+pub(super) fn write(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), PlanError> {
     let path = dir.join(name);
     crate::fsio::write_bytes_atomically(&path, bytes)
         .map_err(|e| PlanError::Invalid(format!("{}: {e}", path.display())))
@@ -351,8 +372,9 @@ pub fn run(
                 strategy,
                 spacing: cfg.spacing,
                 k: cfg.k,
-                max_level: cfg.max_level,
+                grids: super::square_grids(cfg.max_level),
                 bound: true,
+                ..PlanConfig::default()
             };
             let e = evaluate(
                 &mut scorer,
@@ -381,8 +403,9 @@ pub fn run(
                 strategy: Strategy::Mixture,
                 spacing,
                 k: cfg.k,
-                max_level: cfg.spacing_level.min(cfg.max_level),
+                grids: super::square_grids(cfg.spacing_level.min(cfg.max_level)),
                 bound: true,
+                ..PlanConfig::default()
             };
             let e = evaluate(
                 &mut scorer,
@@ -408,7 +431,7 @@ pub fn run(
     Ok(md)
 }
 
-fn short(spec: &str) -> &str {
+pub(super) fn short(spec: &str) -> &str {
     spec.strip_prefix("nbrdf:").unwrap_or(spec)
 }
 
@@ -527,35 +550,34 @@ fn markdown(cfg: &ReportConfig, rows: &[Row], spacing: &[Row], stops: &[StopChoi
             r.brdf_log_err
         );
     }
-    let _ = writeln!(s, "\nFigures: `plan-flip.png`, `plan-logerr.png` (error vs gonio minutes), `plan-order.png` (motion minutes per strategy and order).");
+    let _ = writeln!(s, "\nFigures: `plan-flip.png`, `plan-logerr.png` (error vs gonio minutes, one panel per material), `plan-order.png` (motion minutes per strategy and order).");
     s
 }
 
 fn charts(dir: &Path, cfg: &ReportConfig, rows: &[Row]) -> Result<(), PlanError> {
-    let series = |metric: fn(&Row) -> f64| -> Vec<Series> {
+    // One panel per material (three strategies each): one chart with every material's curves had
+    // too many series to read.
+    let panels = |metric: fn(&Row) -> f64, label: &str| -> Result<(usize, usize, Vec<u8>), PlanError> {
+        let (w, h) = (520u32, 360u32);
         let mut out = Vec::new();
         for m in &cfg.materials {
+            let mut c = Chart::new(format!("{}: {label}", short(m)), "gonio minutes", label);
+            c.x_log = true;
+            c.y_log = true;
+            c.width = w;
+            c.height = h;
             for st in ["specular", "mixture", "uniform"] {
                 let pts: Vec<(f64, f64)> = rows
                     .iter()
                     .filter(|r| &r.material == m && r.strategy == st)
                     .map(|r| (r.gonio_seconds / 60.0, metric(r)))
                     .collect();
-                out.push(Series::new(format!("{} {st}", short(m)), pts, Mark::LineAndPoints));
+                c.series.push(Series::new(st, pts, Mark::LineAndPoints));
             }
+            out.push(crate::plot::draw_rgb(&c).map_err(|e| PlanError::Invalid(e.to_string()))?);
         }
-        out
+        Ok(super::tradeoff::tile(&out, w as usize, h as usize, 3))
     };
-    let mut flip = Chart::new("Render error vs measurement time", "gonio minutes", "mean FLIP");
-    flip.x_log = true;
-    flip.y_log = true;
-    flip.width = 1100;
-    flip.height = 800;
-    flip.series = series(|r| r.flip);
-    let mut log = flip.clone();
-    log.title = "BRDF error vs measurement time".into();
-    log.y_label = "brdf_log_err".into();
-    log.series = series(|r| r.brdf_log_err);
     let mut ord = Chart::new("Motion time per plan", "directions", "motion minutes");
     ord.x_log = true;
     ord.y_log = true;
@@ -566,12 +588,13 @@ fn charts(dir: &Path, cfg: &ReportConfig, rows: &[Row]) -> Result<(), PlanError>
         Series::new("optimised order", pick(|r| r.motion_seconds), Mark::Points),
         Series::new("lower bound", pick(|r| r.lower_bound_motion_seconds), Mark::Points),
     ];
-    for (chart, name) in [
-        (flip, "plan-flip.png"),
-        (log, "plan-logerr.png"),
-        (ord, "plan-order.png"),
-    ] {
-        crate::plot::write_png(&chart, &dir.join(name)).map_err(|e| PlanError::Invalid(e.to_string()))?;
+    let flip = panels(|r| r.flip, "mean FLIP")?;
+    let log = panels(|r| r.brdf_log_err, "brdf_log_err")?;
+    for ((w, h, rgb), name) in [(flip, "plan-flip.png"), (log, "plan-logerr.png")] {
+        let path = dir.join(name);
+        crate::render::image::write_rgb8_png(&path, w, h, rgb)
+            .map_err(|e| PlanError::Invalid(format!("{}: {e}", path.display())))?;
     }
+    crate::plot::write_png(&ord, &dir.join("plan-order.png")).map_err(|e| PlanError::Invalid(e.to_string()))?;
     Ok(())
 }

@@ -8,52 +8,94 @@ fn plan_for(estimate: Estimate, strategy: Strategy, max_level: usize) -> Plan {
     planner
         .plan(&PlanConfig {
             strategy,
-            max_level,
+            grids: square_grids(max_level),
             ..PlanConfig::default()
         })
         .expect("plan")
 }
 
+/// The paper's Table 1 levels: 2x2, 4x4, 8x4, 8x8 (N x M).
+const TABLE1_GRIDS: [(usize, usize); 4] = [(2, 2), (4, 4), (8, 4), (8, 8)];
+
 #[test]
 fn levels_nest_and_reuse_every_direction() {
-    for strategy in [Strategy::Mixture, Strategy::Specular, Strategy::Uniform] {
-        let plan = plan_for(ggx_estimate(0.15, 0.1), strategy, 4);
-        let fine = 1usize << 4;
-        for (o, d) in plan.directions.iter().enumerate() {
-            let stride = fine >> d.level;
-            assert!(d.i % stride == 0 && d.j % stride == 0, "{strategy}: {d:?}");
-            // Execution order: levels are consecutive blocks.
-            let l = &plan.levels[d.level - 1];
-            assert!((l.first..l.first + l.count).contains(&o));
-        }
-        // Every node of level L that is measured points into the prefix of level L.
-        for l in &plan.levels {
-            let stride = fine / l.n;
-            for (&(_, i, j), &d) in &plan.node_dir {
-                if i % stride == 0 && j % stride == 0 {
-                    assert!(
-                        d < l.cumulative_directions,
-                        "{strategy} level {}: node uses {d}",
-                        l.level
-                    );
+    for grids in [square_grids(4), TABLE1_GRIDS.to_vec()] {
+        for strategy in [Strategy::Mixture, Strategy::Specular, Strategy::Uniform] {
+            let planner = Planner::new(default_instrument(), ggx_estimate(0.15, 0.1)).expect("planner");
+            let plan = planner
+                .plan(&PlanConfig {
+                    strategy,
+                    grids: grids.clone(),
+                    ..PlanConfig::default()
+                })
+                .expect("plan");
+            let (fine_n, fine_m) = *grids.last().unwrap();
+            let on_level = |l: &LevelSummary, i: usize, j: usize| i % (fine_n / l.n) == 0 && j % (fine_m / l.m) == 0;
+            for (o, d) in plan.directions.iter().enumerate() {
+                let l = &plan.levels[d.level - 1];
+                assert!(on_level(l, d.i, d.j), "{strategy}: {d:?}");
+                // Execution order: levels are consecutive blocks.
+                assert!((l.first..l.first + l.count).contains(&o));
+            }
+            for (l, &(n, m)) in plan.levels.iter().zip(&grids) {
+                assert_eq!((l.n, l.m), (n, m));
+                // Every node of level L that is measured points into the prefix of level L, and a
+                // node of level L is a node of every later level (nesting).
+                for (&(_, i, j), &d) in &plan.node_dir {
+                    if on_level(l, i, j) {
+                        assert!(
+                            d < l.cumulative_directions,
+                            "{strategy} level {}: node uses {d}",
+                            l.level
+                        );
+                        for later in &plan.levels[l.level..] {
+                            assert!(on_level(later, i, j));
+                        }
+                    }
                 }
             }
-        }
-        let values = plan.measure(&Ggx {
-            alpha: 0.15,
-            diffuse: DVec3::splat(0.1),
-            specular: DVec3::ONE,
-        });
-        for l in &plan.levels {
-            // A level's reconstruction must not read past its prefix: poison the rest.
-            let mut v = values.clone();
-            for x in v.iter_mut().skip(l.cumulative_directions) {
-                *x = DVec3::splat(f64::NAN);
+            let values = plan.measure(&Ggx {
+                alpha: 0.15,
+                diffuse: DVec3::splat(0.1),
+                specular: DVec3::ONE,
+            });
+            for l in &plan.levels {
+                // A level's reconstruction must not read past its prefix: poison the rest.
+                let mut v = values.clone();
+                for x in v.iter_mut().skip(l.cumulative_directions) {
+                    *x = DVec3::splat(f64::NAN);
+                }
+                let grid = plan.reconstruct(l.level, &v).expect("grid");
+                assert_eq!(grid.grid().size(), (l.n, l.m));
+                let probe = grid.eval(from_spherical(0.3, 0.0), from_spherical(0.4, 2.0));
+                assert!(probe.is_finite(), "{strategy} level {}", l.level);
             }
-            let grid = plan.reconstruct(l.level, &v).expect("grid");
-            let probe = grid.eval(from_spherical(0.3, 0.0), from_spherical(0.4, 2.0));
-            assert!(probe.is_finite(), "{strategy} level {}", l.level);
         }
+    }
+}
+
+#[test]
+fn uniform_and_mixture_measure_the_same_number_of_directions() {
+    // The nudge rule keeps every node of a warp that covers the hemisphere: equal grids, equal cost.
+    for estimate in [ggx_estimate(0.15, 0.1), ggx_estimate(0.02, 0.3), ggx_estimate(0.6, 0.0)] {
+        let plans: Vec<Plan> = [Strategy::Mixture, Strategy::Uniform]
+            .into_iter()
+            .map(|strategy| {
+                Planner::new(default_instrument(), estimate.clone())
+                    .expect("planner")
+                    .plan(&PlanConfig {
+                        strategy,
+                        grids: TABLE1_GRIDS.to_vec(),
+                        ..PlanConfig::default()
+                    })
+                    .expect("plan")
+            })
+            .collect();
+        for (a, b) in plans[0].levels.iter().zip(&plans[1].levels) {
+            assert_eq!(a.cumulative_directions, b.cumulative_directions, "{:?}", estimate.model);
+        }
+        // Without the nudge the blocked cone would have dropped some of them.
+        assert!(plans.iter().any(|p| p.dropped.nudged > 0));
     }
 }
 
@@ -204,9 +246,73 @@ fn bad_configs_are_refused() {
     for (k, max_level) in [(0, 2), (8, 0), (8, MAX_LEVEL + 1)] {
         let r = planner.plan(&PlanConfig {
             k,
-            max_level,
+            grids: square_grids(max_level),
             ..PlanConfig::default()
         });
         assert!(r.is_err());
     }
+    // Levels that do not nest, a grid too small, one too large.
+    for grids in [
+        vec![(4, 4), (6, 6)],
+        vec![(4, 4), (8, 2)],
+        vec![(4, 4), (4, 4)],
+        vec![(1, 4)],
+        vec![(2, 2), (2 * MAX_GRID, 2)],
+    ] {
+        let r = planner.plan(&PlanConfig {
+            grids: grids.clone(),
+            ..PlanConfig::default()
+        });
+        assert!(r.is_err(), "{grids:?}");
+    }
+}
+
+/// Mean |log(1 + f cos) - log(1 + f_rec cos)| over random pairs with theta_i between the slices.
+fn log_err_between_slices(truth: &dyn Material, rec: &dyn Material) -> f64 {
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let n = 4000;
+    let mut sum = 0.0;
+    for _ in 0..n {
+        let wi = from_spherical(rng.random::<f64>() * 1.4, rng.random::<f64>() * std::f64::consts::TAU);
+        let wo = from_spherical(rng.random::<f64>() * 1.5, rng.random::<f64>() * std::f64::consts::TAU);
+        let (a, b) = (truth.eval(wi, wo) * wo.z, rec.eval(wi, wo) * wo.z);
+        sum += (0..3).map(|c| (a[c].ln_1p() - b[c].ln_1p()).abs()).sum::<f64>() / 3.0;
+    }
+    sum / n as f64
+}
+
+#[test]
+fn query_lookup_and_log_interpolation_beat_the_plain_reconstruction_on_a_glossy_lobe() {
+    let truth = Ggx {
+        alpha: 0.08,
+        diffuse: DVec3::splat(0.1),
+        specular: DVec3::ONE,
+    };
+    let planner = Planner::new(default_instrument(), ggx_estimate(0.08, 0.1)).expect("planner");
+    let err = |lookup: Lookup, interp: Interp| {
+        let plan = planner
+            .plan(&PlanConfig {
+                grids: square_grids(3),
+                lookup,
+                interp,
+                bound: false,
+                ..PlanConfig::default()
+            })
+            .expect("plan");
+        let values = plan.measure(&truth);
+        let rec = plan.reconstruct(3, &values).expect("rec");
+        // At a node the reconstruction returns the measurement (log and exp - 1 undo each other).
+        let d = &plan.directions[plan.directions.len() / 2];
+        let at_node = rec.eval(d.wi, d.wo);
+        assert!(
+            (at_node - values[plan.directions.len() / 2]).abs().max_element() < 1e-9 * (1.0 + at_node.max_element())
+        );
+        log_err_between_slices(&truth, &rec)
+    };
+    let plain = err(Lookup::Slice, Interp::Linear);
+    let query = err(Lookup::Query, Interp::Linear);
+    let both = err(Lookup::Query, Interp::Log);
+    println!("log err: slice+linear {plain:.4}, query+linear {query:.4}, query+log {both:.4}");
+    assert!(query < plain, "{query} vs {plain}");
+    assert!(both < plain, "{both} vs {plain}");
 }

@@ -1,0 +1,841 @@
+//! The trade-off report (`gonio tradeoff`): what each level of accuracy costs in measurement time,
+//! per material and strategy, and the paper's Table 1.
+//!
+//! For each material: plan every strategy at the same nested levels, measure the ground truth at the
+//! planned directions (the virtual scan without effects), reconstruct each level and score it
+//! (`report::Scorer`): under the capture point light (`examples/sphere-point.toml`) and under the
+//! environment light (`examples/sphere-sky.toml` by default), RMSE / PSNR of the 8-bit sRGB images
+//! and mean LDR FLIP, plus `brdf_log_err` over the fit's direction set.
+//!
+//! Strategies: `adaptive` (the mixture warp of the encoder's estimate from a capture photo of the
+//! material, rendered per `examples/capture.toml`), `adaptive-true` (the same warp from the true
+//! parameters: analytic materials themselves, others their GGX fit), `specular` (the paper's
+//! pure-specular warp, from the same estimate as `adaptive`, as in the paper), `uniform` (equal
+//! steps in theta_o and phi_o, the same grids, hence the same count: see the planner's nudge rule).
+
+use super::report::{csv, score, short, write, Scorer};
+use super::{estimate_for, Estimate, PlanConfig, PlanError, Planner, Spacing, Strategy};
+use crate::brdf::parse_material;
+use crate::encoder::dataset::capture_scene;
+use crate::encoder::infer::Encoder;
+use crate::encoder::ModelKind;
+use crate::plot::{Chart, Mark, Series};
+use crate::render::render_with;
+use crate::render::Scene;
+use gonio_shared::instrument::InstrumentConfig;
+use std::fmt::{self, Write};
+use std::path::Path;
+use std::time::Instant;
+
+/// The paper's Table 1 materials (MERL; here their neural fits).
+pub const TABLE1_MATERIALS: [&str; 4] = [
+    "nbrdf:pink-fabric",
+    "nbrdf:red-fabric2",
+    "nbrdf:green-metallic-paint",
+    "nbrdf:white-diffuse-bball",
+];
+/// The paper's Table 1 outgoing grids per incoming theta (N x M), 8 incoming.
+pub const TABLE1_GRIDS: [(usize, usize); 4] = [(2, 2), (4, 4), (8, 4), (8, 8)];
+/// The paper's PSNR (dB, 8-bit renders under environment light, its adaptive method) per Table 1
+/// material and grid, as quoted in issue 7.
+pub const TABLE1_PAPER_PSNR: [(&str, [f64; 4]); 4] = [
+    ("nbrdf:pink-fabric", [27.853, 32.16, 32.24, 32.62]),
+    ("nbrdf:red-fabric2", [32.49, 39.72, 39.88, 40.17]),
+    ("nbrdf:green-metallic-paint", [25.0, 32.17, 32.01, 33.94]),
+    ("nbrdf:white-diffuse-bball", [30.36, 30.22, 30.054, 30.65]),
+];
+/// The encoder's held-out MERL test materials (`host/models/README.md`): never seen in training.
+pub const HELDOUT_MATERIALS: [&str; 15] = [
+    "nbrdf:black-oxidized-steel",
+    "nbrdf:blue-metallic-paint2",
+    "nbrdf:color-changing-paint1",
+    "nbrdf:delrin",
+    "nbrdf:gray-plastic",
+    "nbrdf:green-metallic-paint2",
+    "nbrdf:maroon-plastic",
+    "nbrdf:pearl-paint",
+    "nbrdf:polyurethane-foam",
+    "nbrdf:red-metallic-paint",
+    "nbrdf:special-walnut-224",
+    "nbrdf:specular-violet-phenolic",
+    "nbrdf:tungsten-carbide",
+    "nbrdf:white-fabric2",
+    "nbrdf:yellow-plastic",
+];
+
+/// A strategy of the trade-off report.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum TradeStrategy {
+    /// Mixture warp from the encoder's estimate on a capture photo.
+    Adaptive,
+    /// Mixture warp from the true parameters (analytic: itself; others: GGX fit).
+    AdaptiveTrue,
+    /// The paper's pure-specular warp (GGX visible normals), from the encoder's estimate.
+    Specular,
+    /// Equal steps in (theta_o, phi_o).
+    Uniform,
+}
+
+pub const ALL_STRATEGIES: [TradeStrategy; 4] = [
+    TradeStrategy::Adaptive,
+    TradeStrategy::AdaptiveTrue,
+    TradeStrategy::Specular,
+    TradeStrategy::Uniform,
+];
+
+impl fmt::Display for TradeStrategy {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            TradeStrategy::Adaptive => "adaptive",
+            TradeStrategy::AdaptiveTrue => "adaptive-true",
+            TradeStrategy::Specular => "specular",
+            TradeStrategy::Uniform => "uniform",
+        })
+    }
+}
+
+impl TradeStrategy {
+    fn planner_strategy(self) -> Strategy {
+        match self {
+            TradeStrategy::Adaptive | TradeStrategy::AdaptiveTrue => Strategy::Mixture,
+            TradeStrategy::Specular => Strategy::Specular,
+            TradeStrategy::Uniform => Strategy::Uniform,
+        }
+    }
+    /// Whether the plan is built from the photo estimate (else from the true parameters).
+    fn uses_photo(self) -> bool {
+        matches!(self, TradeStrategy::Adaptive | TradeStrategy::Specular)
+    }
+}
+
+/// Named configurations.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Preset {
+    /// The paper's Table 1: four MERL fits at 2x2, 4x4, 8x4, 8x8, 8 incoming, 256 px renders.
+    Table1,
+    /// The encoder's 15 held-out MERL materials at 2x2 .. 16x16 (the "beyond the paper" test).
+    Heldout,
+}
+
+impl fmt::Display for Preset {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Preset::Table1 => "table1",
+            Preset::Heldout => "heldout",
+        })
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct TradeoffConfig {
+    pub materials: Vec<String>,
+    pub strategies: Vec<TradeStrategy>,
+    pub grids: Vec<(usize, usize)>,
+    pub k: usize,
+    pub spacing: Spacing,
+    /// Side of the point-light render (pixels).
+    pub size: usize,
+    /// Side of the environment render (pixels), its environment samples per pixel.
+    pub env_size: usize,
+    pub env_spp: u32,
+    /// Compare psnr_env with the paper's Table 1 (only for its materials and grids).
+    pub paper: bool,
+    /// The preset this config came from (for the regenerate line), if any.
+    pub preset: Option<Preset>,
+    /// The reconstruction's u lookup and interpolated quantity.
+    pub lookup: super::Lookup,
+    pub interp: super::Interp,
+}
+
+impl Default for TradeoffConfig {
+    fn default() -> Self {
+        Self {
+            materials: super::report::DEFAULT_MATERIALS.iter().map(|s| s.to_string()).collect(),
+            strategies: ALL_STRATEGIES.to_vec(),
+            grids: super::square_grids(4),
+            k: 8,
+            spacing: Spacing::Angle,
+            size: 128,
+            env_size: 256,
+            env_spp: 64,
+            paper: false,
+            preset: None,
+            lookup: super::Lookup::Query,
+            interp: super::Interp::Log,
+        }
+    }
+}
+
+impl TradeoffConfig {
+    pub fn preset(p: Preset) -> Self {
+        match p {
+            Preset::Table1 => Self {
+                materials: TABLE1_MATERIALS.iter().map(|s| s.to_string()).collect(),
+                grids: TABLE1_GRIDS.to_vec(),
+                // The paper rendered 256 x 256 images.
+                size: 256,
+                paper: true,
+                preset: Some(p),
+                ..Self::default()
+            },
+            Preset::Heldout => Self {
+                materials: HELDOUT_MATERIALS.iter().map(|s| s.to_string()).collect(),
+                preset: Some(p),
+                ..Self::default()
+            },
+        }
+    }
+}
+
+/// A checked list of nested levels (N x M outgoing per incoming theta), as the CLI takes it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Grids(pub Vec<(usize, usize)>);
+
+/// "2x2,4x4,8x4" -> [(2, 2), (4, 4), (8, 4)], checked to nest (`check_grids`).
+pub fn parse_grids(s: &str) -> Result<Grids, String> {
+    let grids = s
+        .split(',')
+        .map(|g| {
+            let (n, m) = g
+                .trim()
+                .split_once(['x', 'X'])
+                .ok_or_else(|| format!("'{g}' is not a grid like 8x4"))?;
+            let p = |v: &str| {
+                v.trim()
+                    .parse::<usize>()
+                    .map_err(|_| format!("'{g}' is not a grid like 8x4"))
+            };
+            Ok((p(n)?, p(m)?))
+        })
+        .collect::<Result<Vec<_>, String>>()?;
+    super::check_grids(&grids).map_err(|e| e.to_string())?;
+    Ok(Grids(grids))
+}
+
+/// One row of `tradeoff.csv`: one material x strategy x level.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct TradeRow {
+    pub material: String,
+    pub strategy: String,
+    /// The analytic estimate the plan was built from (uniform: none needed; shows the true one).
+    pub estimate: String,
+    pub incoming: usize,
+    pub level: usize,
+    pub grid_n: usize,
+    pub grid_m: usize,
+    pub directions: usize,
+    /// Planned gonio time up to this level (move + settle + exposure, optimised order).
+    pub gonio_seconds: f64,
+    pub rmse: f64,
+    pub psnr: f64,
+    pub flip: f64,
+    pub rmse_env: f64,
+    pub psnr_env: f64,
+    pub flip_env: f64,
+    pub brdf_log_err: f64,
+    /// Host compute before the scan: photo -> estimate (encoder; the GGX fit for adaptive-true of a
+    /// non-analytic material; 0 otherwise) and estimate -> ordered, timed plan (all levels).
+    pub estimate_seconds: f64,
+    pub plan_seconds: f64,
+    pub host_seconds: f64,
+    /// The paper's psnr_env for this material and grid (Table 1 only).
+    pub paper_psnr_env: Option<f64>,
+}
+
+/// The encoder's estimate (`plan::photo::estimate_from_image`, GGX model) from a capture photo of
+/// `spec`, and the host time it took (s). The photo is rendered per `examples/capture.toml` (256 px,
+/// linear: it stands in for the camera and is not timed).
+pub fn photo_estimate(spec: &str, encoder: &Encoder) -> Result<(Estimate, f64), PlanError> {
+    let scene = capture_scene(spec, CAPTURE_SIZE).map_err(PlanError::Invalid)?;
+    let photo = render_with(&scene, &scene.settings, &|| {}).map_err(|e| PlanError::Invalid(e.to_string()))?;
+    let t0 = Instant::now();
+    let est = super::photo::estimate_from_image(&photo, encoder, None)?;
+    Ok((est.estimate, t0.elapsed().as_secs_f64()))
+}
+
+/// Side of the rendered capture photo (as `examples/capture.toml`).
+const CAPTURE_SIZE: usize = 256;
+
+fn paper_psnr(material: &str, grid: (usize, usize)) -> Option<f64> {
+    let col = TABLE1_GRIDS.iter().position(|&g| g == grid)?;
+    TABLE1_PAPER_PSNR
+        .iter()
+        .find(|(m, _)| *m == material)
+        .map(|(_, v)| v[col])
+}
+
+/// Run the report into `dir` (`tradeoff.csv`, `tradeoff.md`, `tradeoff.png`); `env_scene` is the
+/// environment-lit scene (its camera is resized to `env_size`, its spp set to `env_spp`).
+/// `progress` is called once per scored level. Returns the markdown.
+pub fn run(
+    cfg: &TradeoffConfig,
+    instrument: &InstrumentConfig<f64>,
+    mut env_scene: Scene,
+    dir: &Path,
+    progress: &dyn Fn(&str),
+) -> Result<String, PlanError> {
+    super::check_grids(&cfg.grids)?;
+    if cfg.materials.is_empty() || cfg.strategies.is_empty() {
+        return Err(PlanError::Invalid(
+            "tradeoff needs at least one material and one strategy".into(),
+        ));
+    }
+    env_scene.camera.width = cfg.env_size;
+    env_scene.camera.height = cfg.env_size;
+    env_scene.settings.spp = cfg.env_spp;
+    let mut scorer = Scorer::new(cfg.size)?.with_env(env_scene);
+    // Resolve every material and estimate first: a bad spec fails before any long work.
+    let needs_photo = cfg.strategies.iter().any(|s| s.uses_photo());
+    let encoder = if needs_photo {
+        Some(Encoder::shipped(ModelKind::Ggx).map_err(|e| PlanError::Invalid(e.to_string()))?)
+    } else {
+        None
+    };
+    let mut inputs = Vec::new();
+    for spec in &cfg.materials {
+        let truth = parse_material(spec)?;
+        let t0 = Instant::now();
+        let true_estimate = estimate_for(spec)?;
+        let fit_seconds = if crate::brdf::spec::parse_analytic(spec).is_ok() {
+            0.0
+        } else {
+            t0.elapsed().as_secs_f64()
+        };
+        let photo = match &encoder {
+            Some(e) => Some(photo_estimate(spec, e)?),
+            None => None,
+        };
+        inputs.push((spec.clone(), truth, (true_estimate, fit_seconds), photo));
+    }
+    std::fs::create_dir_all(dir).map_err(|e| PlanError::Invalid(format!("{}: {e}", dir.display())))?;
+    let mut rows: Vec<TradeRow> = Vec::new();
+    for (spec, truth, true_est, photo) in &inputs {
+        let truth_img = scorer.render(parse_material(spec)?);
+        let truth_env = scorer
+            .render_env(parse_material(spec)?, spec)
+            .ok_or_else(|| PlanError::Invalid("no environment scene".into()))?;
+        for &strategy in &cfg.strategies {
+            let (estimate, estimate_seconds) = match (strategy.uses_photo(), photo) {
+                (true, Some((e, s))) => (e, *s),
+                (false, _) => (
+                    &true_est.0,
+                    if strategy == TradeStrategy::Uniform {
+                        0.0
+                    } else {
+                        true_est.1
+                    },
+                ),
+                (true, None) => unreachable!("photo estimates are made whenever a strategy needs one"),
+            };
+            let config = PlanConfig {
+                strategy: strategy.planner_strategy(),
+                spacing: cfg.spacing,
+                k: cfg.k,
+                grids: cfg.grids.clone(),
+                bound: false,
+                lookup: cfg.lookup,
+                interp: cfg.interp,
+            };
+            let t0 = Instant::now();
+            let plan = Planner::new(*instrument, estimate.clone())?.plan(&config)?;
+            let plan_seconds = t0.elapsed().as_secs_f64();
+            let measured = plan.measure(truth.as_ref());
+            for l in &plan.levels {
+                let grid = plan.reconstruct(l.level, &measured)?;
+                let log_err = scorer.log_err(truth.as_ref(), &grid);
+                let point = score(&truth_img, &scorer.render(Box::new(grid.clone())))?;
+                let env_img = scorer
+                    .render_env(Box::new(grid), spec)
+                    .ok_or_else(|| PlanError::Invalid("no environment scene".into()))?;
+                let env = score(&truth_env, &env_img)?;
+                let paper_psnr_env = if cfg.paper { paper_psnr(spec, (l.n, l.m)) } else { None };
+                rows.push(TradeRow {
+                    material: spec.clone(),
+                    strategy: strategy.to_string(),
+                    estimate: estimate.model.to_spec(),
+                    incoming: cfg.k,
+                    level: l.level,
+                    grid_n: l.n,
+                    grid_m: l.m,
+                    directions: l.cumulative_directions,
+                    gonio_seconds: l.cumulative_seconds,
+                    rmse: point.rmse,
+                    psnr: point.psnr,
+                    flip: point.flip,
+                    rmse_env: env.rmse,
+                    psnr_env: env.psnr,
+                    flip_env: env.flip,
+                    brdf_log_err: log_err,
+                    estimate_seconds,
+                    plan_seconds,
+                    host_seconds: estimate_seconds + plan_seconds,
+                    paper_psnr_env,
+                });
+                progress(&format!(
+                    "{} {strategy} {}x{}: {} directions, {:.1} min, psnr_env {:.2}, flip {:.4}, brdf_log_err {:.4}",
+                    short(spec),
+                    l.n,
+                    l.m,
+                    l.cumulative_directions,
+                    l.cumulative_seconds / 60.0,
+                    env.psnr,
+                    point.flip,
+                    log_err
+                ));
+            }
+        }
+    }
+    let md = markdown(cfg, &rows);
+    let (tw, th, rgb) = chart_rgb(cfg, &rows)?;
+    let table = csv(&rows)?;
+    // Every output is computed before the first write; each is written atomically.
+    let png = dir.join("tradeoff.png");
+    crate::render::image::write_rgb8_png(&png, tw, th, rgb)
+        .map_err(|e| PlanError::Invalid(format!("{}: {e}", png.display())))?;
+    write(dir, "tradeoff.csv", &table)?;
+    write(dir, "tradeoff.md", md.as_bytes())?;
+    Ok(md)
+}
+
+/// The command that regenerates this run.
+fn command(cfg: &TradeoffConfig) -> String {
+    let mut c = "gonio tradeoff".to_string();
+    match cfg.preset {
+        Some(p) => {
+            let _ = write!(c, " --preset {p}");
+        }
+        None => {
+            for m in &cfg.materials {
+                let _ = write!(c, " --material {m}");
+            }
+        }
+    }
+    let grids: Vec<String> = cfg.grids.iter().map(|(n, m)| format!("{n}x{m}")).collect();
+    let _ = write!(
+        c,
+        " --levels {} --incoming {} --lookup {} --interp {} --size {} --env-size {} --env-spp {} -o DIR",
+        grids.join(","),
+        cfg.k,
+        cfg.lookup,
+        cfg.interp,
+        cfg.size,
+        cfg.env_size,
+        cfg.env_spp
+    );
+    c
+}
+
+/// A spec with its numbers at 3 significant digits, for tables.
+fn compact(spec: &str) -> String {
+    let mut out = String::new();
+    let mut num = String::new();
+    let flush = |num: &mut String, out: &mut String| {
+        if !num.is_empty() {
+            match num.parse::<f64>() {
+                Ok(v) if v != 0.0 && num.contains('.') => {
+                    let digits = (2 - v.abs().log10().floor() as i32).max(0) as usize;
+                    let _ = write!(out, "{v:.digits$}");
+                }
+                _ => out.push_str(num),
+            }
+            num.clear();
+        }
+    };
+    for c in spec.chars() {
+        if c.is_ascii_digit() || c == '.' || ((c == 'e' || c == '-') && !num.is_empty()) {
+            num.push(c);
+        } else {
+            flush(&mut num, &mut out);
+            out.push(c);
+        }
+    }
+    flush(&mut num, &mut out);
+    out
+}
+
+fn find<'a>(rows: &'a [TradeRow], material: &str, strategy: &str, level: usize) -> Option<&'a TradeRow> {
+    rows.iter()
+        .find(|r| r.material == material && r.strategy == strategy && r.level == level)
+}
+
+fn markdown(cfg: &TradeoffConfig, rows: &[TradeRow]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "# Accuracy vs measurement time\n\nRegenerate: `{}` (release build; instrument `examples/gonio.toml`).\n\n\
+         Render setup. Point light: `examples/sphere-point.toml` (orthographic sphere, one point light), {} x {} px, \
+         2 x 2 sub-pixels. Environment light: `examples/sphere-sky.toml` (sphere in the procedural sky `examples/sky.exr`, \
+         perspective camera, background = the sky), {} x {} px, {} environment samples per pixel (MIS with one BRDF \
+         sample each), 2 x 2 sub-pixels, seed 1; the truth and every reconstruction of a material draw the same random \
+         numbers (same seed, same BRDF sampler: the truth's), so Monte Carlo noise largely cancels. Errors on the 8-bit \
+         sRGB images (exposure 1, clipped, values / 255, peak 1, whole image including the background), mean LDR FLIP; \
+         `brdf_log_err` = mean over the fixed direction set of `gonio brdf fit` of |log(1 + f cos) - log(1 + f_rec cos)| \
+         over RGB. Ground truth: the material itself (MERL materials: their neural fits, not the raw tables). \
+         Times: planned gonio minutes (IK replay, shared motion profile, settle + exposure), host seconds \
+         (photo -> estimate -> ordered plan, all levels).\n",
+        command(cfg),
+        cfg.size,
+        cfg.size,
+        cfg.env_size,
+        cfg.env_size,
+        cfg.env_spp
+    );
+    let _ = writeln!(
+        s,
+        "## Error per level\n\n| material | strategy | estimate | grid | directions | gonio min | host s | PSNR | FLIP | PSNR env | FLIP env | brdf_log_err |\n|---|---|---|---|---|---|---|---|---|---|---|---|"
+    );
+    for r in rows {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {}x{} | {} | {:.1} | {:.2} | {:.2} | {:.4} | {:.2} | {:.4} | {:.4} |",
+            short(&r.material),
+            r.strategy,
+            compact(&r.estimate),
+            r.grid_n,
+            r.grid_m,
+            r.directions,
+            r.gonio_seconds / 60.0,
+            r.host_seconds,
+            r.psnr,
+            r.flip,
+            r.psnr_env,
+            r.flip_env,
+            r.brdf_log_err
+        );
+    }
+    if cfg.paper && rows.iter().any(|r| r.paper_psnr_env.is_some()) {
+        table1(&mut s, cfg, rows);
+    }
+    versus_uniform(&mut s, cfg, rows);
+    let _ = writeln!(
+        s,
+        "\nFigure: `tradeoff.png` (per material: FLIP under the point light, FLIP under the environment, brdf_log_err, against gonio minutes; log-log)."
+    );
+    s
+}
+
+fn table1(s: &mut String, cfg: &TradeoffConfig, rows: &[TradeRow]) {
+    let strategies: Vec<String> = cfg.strategies.iter().map(|x| x.to_string()).collect();
+    let _ = writeln!(
+        s,
+        "\n## Table 1: psnr_env (dB) next to the paper\n\nThe paper's values: its adaptive method, 8-bit renders under environment light \
+         (its scene, not ours: the comparison is indicative). Ours: {}.\n\n| material | grid | directions | paper |{}\n|---|---|---|---|{}",
+        strategies.join(", "),
+        strategies.iter().map(|x| format!(" {x} |")).collect::<String>(),
+        "---|".repeat(strategies.len())
+    );
+    let mut meets: Vec<Vec<String>> = vec![Vec::new(); strategies.len()];
+    for m in &cfg.materials {
+        let mut all_ok = vec![true; strategies.len()];
+        let mut any = false;
+        for (li, _) in cfg.grids.iter().enumerate() {
+            let level = li + 1;
+            let Some(paper) = rows
+                .iter()
+                .find(|r| &r.material == m && r.level == level)
+                .and_then(|r| r.paper_psnr_env)
+            else {
+                continue;
+            };
+            any = true;
+            let base = find(rows, m, &strategies[0], level);
+            let mut line = format!(
+                "| {} | {}x{} | {} | {paper:.2} |",
+                short(m),
+                cfg.grids[li].0,
+                cfg.grids[li].1,
+                base.map_or(0, |r| r.directions)
+            );
+            for (si, st) in strategies.iter().enumerate() {
+                match find(rows, m, st, level) {
+                    Some(r) => {
+                        let ok = r.psnr_env >= paper;
+                        all_ok[si] &= ok;
+                        let _ = write!(
+                            line,
+                            " {}{:.2}{} |",
+                            if ok { "**" } else { "" },
+                            r.psnr_env,
+                            if ok { "**" } else { "" }
+                        );
+                    }
+                    None => {
+                        all_ok[si] = false;
+                        line += " - |";
+                    }
+                }
+            }
+            let _ = writeln!(s, "{line}");
+        }
+        if any {
+            for (si, ok) in all_ok.iter().enumerate() {
+                if *ok {
+                    meets[si].push(short(m).to_string());
+                }
+            }
+        }
+    }
+    let _ = writeln!(
+        s,
+        "\nBold: at or above the paper. At or above the paper at every count:\n"
+    );
+    for (si, st) in strategies.iter().enumerate() {
+        let _ = writeln!(
+            s,
+            "- {st}: {} of {} materials ({}){}",
+            meets[si].len(),
+            cfg.materials.len(),
+            if meets[si].is_empty() {
+                "none".to_string()
+            } else {
+                meets[si].join(", ")
+            },
+            if meets[si].len() >= 3 {
+                ": goal (>= 3 of 4) met"
+            } else {
+                ": goal (>= 3 of 4) not met"
+            }
+        );
+    }
+}
+
+/// Each mixture strategy against the uniform grid of the same size: brdf_log_err wins per material
+/// (over its levels) and the worst FLIP loss.
+fn versus_uniform(s: &mut String, cfg: &TradeoffConfig, rows: &[TradeRow]) {
+    if !cfg.strategies.contains(&TradeStrategy::Uniform) {
+        return;
+    }
+    let _ = writeln!(
+        s,
+        "\n## Against the uniform grid of the same size\n\nPer material: levels where the strategy's brdf_log_err is lower than uniform's, \
+         and the worst FLIP ratio (strategy / uniform; > 1 is a loss) over its levels, point light and environment.\n\n\
+         | material | strategy | brdf_log_err wins | worst FLIP ratio | worst FLIP env ratio |\n|---|---|---|---|---|"
+    );
+    let levels = cfg.grids.len();
+    for st in cfg.strategies.iter().filter(|s| **s != TradeStrategy::Uniform) {
+        let name = st.to_string();
+        let (mut materials_ok, mut wins_total, mut total) = (0, 0, 0);
+        let (mut worst, mut worst_env) = (0.0f64, 0.0f64);
+        for m in &cfg.materials {
+            let mut wins = 0;
+            let (mut w, mut we) = (0.0f64, 0.0f64);
+            for level in 1..=levels {
+                if let (Some(a), Some(u)) = (find(rows, m, &name, level), find(rows, m, "uniform", level)) {
+                    wins += (a.brdf_log_err < u.brdf_log_err) as usize;
+                    w = w.max(a.flip / u.flip);
+                    we = we.max(a.flip_env / u.flip_env);
+                }
+            }
+            let _ = writeln!(s, "| {} | {name} | {wins}/{levels} | {w:.3} | {we:.3} |", short(m));
+            materials_ok += (4 * wins >= 3 * levels) as usize;
+            wins_total += wins;
+            total += levels;
+            worst = worst.max(w);
+            worst_env = worst_env.max(we);
+        }
+        let _ = writeln!(
+            s,
+            "| **all** | {name} | {wins_total}/{total}; >= 3/4 of levels on {materials_ok}/{} materials | {worst:.3} | {worst_env:.3} |",
+            cfg.materials.len()
+        );
+    }
+}
+
+/// Panels side by side into one RGB image (`cols` per row, all panels the same size).
+pub(super) fn tile(panels: &[Vec<u8>], w: usize, h: usize, cols: usize) -> (usize, usize, Vec<u8>) {
+    let rows = panels.len().div_ceil(cols.max(1));
+    let (tw, th) = (w * cols, h * rows);
+    let mut out = vec![255u8; tw * th * 3];
+    for (p, panel) in panels.iter().enumerate() {
+        let (px, py) = ((p % cols) * w, (p / cols) * h);
+        for y in 0..h {
+            let src = &panel[y * w * 3..(y + 1) * w * 3];
+            let at = ((py + y) * tw + px) * 3;
+            out[at..at + w * 3].copy_from_slice(src);
+        }
+    }
+    (tw, th, out)
+}
+
+fn chart_rgb(cfg: &TradeoffConfig, rows: &[TradeRow]) -> Result<(usize, usize, Vec<u8>), PlanError> {
+    let (w, h) = (520u32, 360u32);
+    type Metric = (&'static str, fn(&TradeRow) -> f64);
+    let metrics: [Metric; 3] = [
+        ("FLIP, point light", |r| r.flip),
+        ("FLIP, environment", |r| r.flip_env),
+        ("brdf_log_err", |r| r.brdf_log_err),
+    ];
+    let mut panels = Vec::new();
+    for m in &cfg.materials {
+        for (label, metric) in metrics {
+            let mut c = Chart::new(format!("{}: {label}", short(m)), "gonio minutes", label);
+            c.x_log = true;
+            c.y_log = true;
+            c.width = w;
+            c.height = h;
+            for st in &cfg.strategies {
+                let pts: Vec<(f64, f64)> = rows
+                    .iter()
+                    .filter(|r| &r.material == m && r.strategy == st.to_string())
+                    .map(|r| (r.gonio_seconds / 60.0, metric(r)))
+                    .collect();
+                c.series.push(Series::new(st.to_string(), pts, Mark::LineAndPoints));
+            }
+            panels.push(crate::plot::draw_rgb(&c).map_err(|e| PlanError::Invalid(e.to_string()))?);
+        }
+    }
+    Ok(tile(&panels, w as usize, h as usize, metrics.len()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::instrument::default_instrument;
+
+    const REQUIRED: [&str; 14] = [
+        "material",
+        "strategy",
+        "incoming",
+        "grid_n",
+        "grid_m",
+        "directions",
+        "gonio_seconds",
+        "rmse",
+        "psnr",
+        "flip",
+        "rmse_env",
+        "psnr_env",
+        "flip_env",
+        "brdf_log_err",
+    ];
+
+    fn env_scene() -> Scene {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/sphere-sky.toml");
+        Scene::load(&path).expect("examples/sphere-sky.toml")
+    }
+
+    /// A tiny run: two analytic materials, the paper's Table 1 grids, 16 px renders.
+    fn tiny(strategies: Vec<TradeStrategy>) -> TradeoffConfig {
+        TradeoffConfig {
+            materials: vec![
+                "ggx:alpha=0.2,diffuse=0.1,specular=1".into(),
+                "ggx:alpha=0.04,diffuse=0.3,specular=1".into(),
+            ],
+            strategies,
+            size: 16,
+            env_size: 16,
+            env_spp: 1,
+            paper: true,
+            ..TradeoffConfig::preset(Preset::Table1)
+        }
+    }
+
+    #[test]
+    fn csv_has_the_columns_and_one_row_per_material_strategy_level() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = tiny(vec![
+            TradeStrategy::AdaptiveTrue,
+            TradeStrategy::Specular,
+            TradeStrategy::Uniform,
+        ]);
+        let md = run(&cfg, &default_instrument(), env_scene(), dir.path(), &|_| {}).expect("run");
+        let text = std::fs::read_to_string(dir.path().join("tradeoff.csv")).unwrap();
+        let mut lines = text.lines();
+        let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+        for c in REQUIRED {
+            assert!(header.contains(&c), "missing column {c} in {header:?}");
+        }
+        let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+        let rows: Vec<Vec<String>> = lines
+            .map(|l| {
+                // Material specs hold commas: the csv quotes them.
+                let mut cells = Vec::new();
+                let (mut cur, mut quoted) = (String::new(), false);
+                for ch in l.chars() {
+                    match ch {
+                        '"' => quoted = !quoted,
+                        ',' if !quoted => cells.push(std::mem::take(&mut cur)),
+                        c => cur.push(c),
+                    }
+                }
+                cells.push(cur);
+                cells
+            })
+            .collect();
+        assert_eq!(rows.len(), cfg.materials.len() * cfg.strategies.len() * cfg.grids.len());
+        for m in &cfg.materials {
+            for st in &cfg.strategies {
+                let mine: Vec<&Vec<String>> = rows
+                    .iter()
+                    .filter(|r| &r[col("material")] == m && r[col("strategy")] == st.to_string())
+                    .collect();
+                // One row per level, with the Table 1 grids N x M in order.
+                let grids: Vec<(usize, usize)> = mine
+                    .iter()
+                    .map(|r| (r[col("grid_n")].parse().unwrap(), r[col("grid_m")].parse().unwrap()))
+                    .collect();
+                assert_eq!(grids, TABLE1_GRIDS.to_vec(), "{m} {st}");
+                for r in &mine {
+                    for c in ["psnr", "flip", "psnr_env", "flip_env", "brdf_log_err", "gonio_seconds"] {
+                        let v: f64 = r[col(c)].parse().unwrap();
+                        assert!(v.is_finite() && v >= 0.0, "{m} {st} {c} = {v}");
+                    }
+                }
+            }
+            // The uniform grid measures as many directions as the adaptive plan, level by level.
+            let dirs = |st: &str| -> Vec<String> {
+                rows.iter()
+                    .filter(|r| &r[col("material")] == m && r[col("strategy")] == st)
+                    .map(|r| r[col("directions")].clone())
+                    .collect()
+            };
+            assert_eq!(dirs("uniform"), dirs("adaptive-true"), "{m}");
+        }
+        // A custom material list compares with nobody's Table 1.
+        assert!(!md.contains("## Table 1") && md.contains("## Against the uniform grid"));
+        assert!(dir.path().join("tradeoff.png").exists() && dir.path().join("tradeoff.md").exists());
+    }
+
+    #[test]
+    fn table1_preset_is_the_papers_setup() {
+        let cfg = TradeoffConfig::preset(Preset::Table1);
+        assert_eq!(cfg.grids, vec![(2, 2), (4, 4), (8, 4), (8, 8)]);
+        assert_eq!(cfg.k, 8);
+        assert_eq!(cfg.materials.len(), 4);
+        for m in &cfg.materials {
+            for &g in &cfg.grids {
+                assert!(paper_psnr(m, g).is_some(), "{m} {g:?}");
+            }
+        }
+        // The preset's levels nest (8x4 inside 8x8, 4x4 inside 8x4).
+        super::super::check_grids(&cfg.grids).expect("nested");
+        assert_eq!(paper_psnr("nbrdf:red-fabric2", (8, 4)), Some(39.88));
+    }
+
+    #[test]
+    fn compact_rounds_the_numbers_of_a_spec() {
+        assert_eq!(
+            compact("ggx:alpha=0.0156064,diffuse=30.8368/5.3386/0,specular=1"),
+            "ggx:alpha=0.0156,diffuse=30.8/5.34/0,specular=1"
+        );
+    }
+
+    #[test]
+    fn grids_parse_and_must_nest() {
+        assert_eq!(parse_grids("2x2,4x4,8x4,8x8").unwrap().0, TABLE1_GRIDS.to_vec());
+        assert_eq!(parse_grids(" 4X2 ").unwrap().0, vec![(4, 2)]);
+        for bad in ["", "8x", "4x4,6x6", "8x8,4x4", "4x4,4x4", "1x1", "axb"] {
+            assert!(parse_grids(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn a_bad_material_fails_before_any_output() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        let mut cfg = tiny(vec![TradeStrategy::Uniform]);
+        cfg.materials.push("nbrdf:no-such-material".into());
+        assert!(run(&cfg, &default_instrument(), env_scene(), &out, &|_| {}).is_err());
+        assert!(!out.exists());
+    }
+}

@@ -1,0 +1,88 @@
+//! `gonio plan IMAGE` and `gonio tradeoff` as a user meets them: a committed capture photo gives a
+//! checked plan; bad input gives a clear error, a non-zero exit and no output file.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn photo(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/encoder")
+        .join(name)
+}
+
+fn gonio(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_gonio"))
+        .args(args)
+        .current_dir(Path::new(env!("CARGO_MANIFEST_DIR")).join(".."))
+        .output()
+        .expect("run gonio")
+}
+
+#[test]
+fn plan_from_a_photo_writes_a_checked_plan() {
+    let dir = tempfile::tempdir().unwrap();
+    let (bin, json) = (dir.path().join("plan.bin"), dir.path().join("plan.json"));
+    let out = gonio(&[
+        "plan",
+        photo("merl-00005.exr").to_str().unwrap(),
+        "--grid",
+        "4",
+        "-o",
+        bin.to_str().unwrap(),
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("estimate from"), "{stdout}");
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    // The documented encoder output for this photo is alpha 0.2428 (expected.csv).
+    let estimate = v["estimate"].as_str().unwrap();
+    assert!(estimate.starts_with("ggx:alpha=0.242"), "{estimate}");
+    assert!(v["directions"].as_array().unwrap().len() > 8);
+    assert!(std::fs::metadata(&bin).unwrap().len() > 0);
+}
+
+#[test]
+fn bad_plan_and_tradeoff_inputs_fail_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let bin = dir.path().join("plan.bin");
+    let missing = dir.path().join("missing.exr");
+    for args in [
+        // A photo that is not there.
+        vec!["plan", missing.to_str().unwrap(), "-o", bin.to_str().unwrap()],
+        // A photo and a model at once.
+        vec![
+            "plan",
+            missing.to_str().unwrap(),
+            "--material-model",
+            "ggx:alpha=0.1",
+            "-o",
+            bin.to_str().unwrap(),
+        ],
+        // Neither.
+        vec!["plan", "-o", bin.to_str().unwrap()],
+    ] {
+        let out = gonio(&args);
+        assert!(!out.status.success(), "{args:?}");
+        assert!(!String::from_utf8_lossy(&out.stderr).contains("panicked"), "{args:?}");
+        assert!(!bin.exists(), "{args:?} left an output");
+    }
+    let out_dir = dir.path().join("tradeoff");
+    for levels in ["4x4,6x6", "8x8,4x4", "3"] {
+        let out = gonio(&["tradeoff", "--levels", levels, "-o", out_dir.to_str().unwrap()]);
+        assert!(!out.status.success(), "{levels}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!err.contains("panicked") && err.contains("--levels"), "{err}");
+        assert!(!out_dir.exists());
+    }
+    let out = gonio(&[
+        "tradeoff",
+        "--material",
+        "nbrdf:no-such",
+        "-o",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+    assert!(!out_dir.exists());
+}
