@@ -7,8 +7,8 @@
 //! alpha the photo P is, pixel by pixel, P = a D + b S, where D and S are renders of the capture
 //! scene with a unit diffuse term and a unit GGX specular term. A non-negative weighted least-squares
 //! fit per channel gives a and b; the estimate is `ggx:alpha, diffuse = a / s, specular = b / s` with
-//! s the luminance of b (the absolute scale, light times exposure, stays unknown and does not matter
-//! to the warp).
+//! s the summed luminance of a and b (the absolute scale, light times exposure, stays unknown and does
+//! not matter to the warp).
 //!
 //! Weights are relative (1 / (P + eps)^2) so the few highlight pixels do not outvote the diffuse base,
 //! and saturated pixels of 8-bit or 16-bit PNGs are left out of the fit (a clipped highlight would
@@ -28,9 +28,6 @@ use std::path::Path;
 pub const PNG_SATURATION: f64 = 0.98;
 /// Relative weight floor: eps = EPS_FRACTION x the channel's mean over the lit sphere.
 const EPS_FRACTION: f64 = 0.05;
-/// Below this luminance ratio of specular to diffuse the specular term is treated as absent, so the
-/// normalisation never divides by (almost) zero.
-const MIN_SPECULAR_RATIO: f64 = 1e-3;
 
 #[derive(Debug, thiserror::Error)]
 pub enum PhotoError {
@@ -122,10 +119,10 @@ pub fn estimate_from_image(
             let alpha = outputs[0];
             let fit = fit_ratio(photo, alpha, saturation)?;
             let lum = |v: DVec3| 0.2126 * v.x + 0.7152 * v.y + 0.0722 * v.z;
-            // Guard beside the division: a photo with no visible specular term keeps a tiny one.
-            let s = lum(fit.specular_coeff)
-                .max(MIN_SPECULAR_RATIO * lum(fit.diffuse_coeff))
-                .max(f64::MIN_POSITIVE);
+            // Only the ratio is known: scale so the two terms' luminances sum to 1. Guard beside
+            // the division: fit_ratio never returns both terms zero for a lit photo, but a zero
+            // sum must not make NaNs.
+            let s = (lum(fit.specular_coeff) + lum(fit.diffuse_coeff)).max(f64::MIN_POSITIVE);
             let model = Analytic::Ggx(Ggx {
                 alpha,
                 diffuse: fit.diffuse_coeff / s,
