@@ -15,6 +15,7 @@
 pub mod cli;
 pub mod file;
 pub mod order;
+pub mod photo;
 pub mod report;
 
 use crate::brdf::analytic::Ggx;
