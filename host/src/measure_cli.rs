@@ -2,7 +2,7 @@
 
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
-use gonio::link::{self, Connection, Measured, RunOptions, TerminalProgress};
+use gonio::link::{self, Connection, TerminalProgress};
 use gonio::sim::{model::SimModel, SimHandle, DEFAULT_SPEEDUP};
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -92,7 +92,7 @@ pub fn run_measure(a: MeasureArgs) -> Result<()> {
         (None, Some(p)) => p.clone(),
         (None, None) => bail!("give --port PATH or --sim SCENE"),
     };
-    let opts = run_options(a.hello_timeout, a.reconnect_wait);
+    let opts = link::run_options(a.hello_timeout, a.reconnect_wait);
     // The handshake happens before the output folder is touched: a port that is not a gonio
     // leaves nothing behind.
     let connection = Connection::open(&port, a.inject_faults, &opts)?;
@@ -102,7 +102,7 @@ pub fn run_measure(a: MeasureArgs) -> Result<()> {
     let measured = result?;
     let csv = a.out.join("measurements.csv");
     link::write_csv(&csv, &cfg, &plan, &measured.journal).with_context(|| format!("cannot write {}", csv.display()))?;
-    print_run(&measured);
+    link::print_run(&measured);
     println!("wrote {}", csv.display());
     if let Some(sim) = sim {
         sim.stop();
@@ -110,32 +110,3 @@ pub fn run_measure(a: MeasureArgs) -> Result<()> {
     Ok(())
 }
 
-/// Link options from the user's timeouts (seconds), clamped to sane ranges.
-pub fn run_options(hello_timeout: f64, reconnect_wait: f64) -> RunOptions {
-    let mut opts = RunOptions::default();
-    opts.timing.hello_timeout = Duration::from_secs_f64(hello_timeout.clamp(0.1, 600.0));
-    opts.reconnect_wait = Duration::from_secs_f64(reconnect_wait.clamp(0.0, 86_400.0));
-    opts
-}
-
-/// The run's rates and link statistics, two or three lines.
-pub fn print_run(m: &Measured) {
-    let summary = &m.summary;
-    let n = summary.measured_now;
-    println!(
-        "measured {n} directions ({} resumed from the journal) in {:.1} s instrument time, {:.2} s wall: {:.1} directions/s instrument, {:.1} directions/s wall",
-        m.resumed,
-        summary.instrument_s,
-        m.wall_s,
-        f64::from(n) / summary.instrument_s.max(1e-9),
-        f64::from(n) / m.wall_s.max(1e-9)
-    );
-    let s = summary.stats;
-    println!(
-        "link: {} frames sent, {} retransmitted ({} timeouts, {} NAKs), {} bad frames in, {} duplicate measurements, {} resend requests, {} reconnects",
-        s.frames_sent, s.retransmits, s.timeouts, s.naks, s.bad_frames_in, s.duplicate_measurements, s.resend_requests, summary.reconnects
-    );
-    if let Some((to_device, to_host)) = &m.injected {
-        println!("injected faults: host->device {to_device:?}; device->host {to_host:?}");
-    }
-}

@@ -14,7 +14,7 @@ use crate::journal::{Journal, JournalError};
 use gonio_shared::instrument::InstrumentConfig;
 use gonio_shared::msg::Direction;
 use std::path::Path;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 #[derive(Debug, thiserror::Error)]
 pub enum MeasureError {
@@ -204,5 +204,35 @@ impl Progress for TerminalProgress {
     }
     fn note(&mut self, line: &str) {
         self.bar.suspend(|| eprintln!("{line}"));
+    }
+}
+
+/// Link options from the user's timeouts (seconds), clamped to sane ranges.
+pub fn run_options(hello_timeout: f64, reconnect_wait: f64) -> RunOptions {
+    let mut opts = RunOptions::default();
+    opts.timing.hello_timeout = Duration::from_secs_f64(hello_timeout.clamp(0.1, 600.0));
+    opts.reconnect_wait = Duration::from_secs_f64(reconnect_wait.clamp(0.0, 86_400.0));
+    opts
+}
+
+/// The run's rates and link statistics, two or three lines.
+pub fn print_run(m: &Measured) {
+    let summary = &m.summary;
+    let n = summary.measured_now;
+    println!(
+        "measured {n} directions ({} resumed from the journal) in {:.1} s instrument time, {:.2} s wall: {:.1} directions/s instrument, {:.1} directions/s wall",
+        m.resumed,
+        summary.instrument_s,
+        m.wall_s,
+        f64::from(n) / summary.instrument_s.max(1e-9),
+        f64::from(n) / m.wall_s.max(1e-9)
+    );
+    let s = summary.stats;
+    println!(
+        "link: {} frames sent, {} retransmitted ({} timeouts, {} NAKs), {} bad frames in, {} duplicate measurements, {} resend requests, {} reconnects",
+        s.frames_sent, s.retransmits, s.timeouts, s.naks, s.bad_frames_in, s.duplicate_measurements, s.resend_requests, summary.reconnects
+    );
+    if let Some((to_device, to_host)) = &m.injected {
+        println!("injected faults: host->device {to_device:?}; device->host {to_host:?}");
     }
 }
