@@ -109,4 +109,3 @@ pub fn run_measure(a: MeasureArgs) -> Result<()> {
     }
     Ok(())
 }
-

@@ -7,8 +7,8 @@
 //! not a gonio leaves nothing behind).
 
 use super::{
-    run_plan, FaultConfig, FaultCounts, FaultyTransport, Link, LinkError, Progress, ReopenFaulty, ReopenPath,
-    RunError, RunOptions, RunSummary, SerialTransport, SharedFaultCounts, Transport,
+    run_plan, FaultConfig, FaultCounts, FaultyTransport, Link, LinkError, Progress, ReopenFaulty, ReopenPath, RunError,
+    RunOptions, RunSummary, SerialTransport, SharedFaultCounts, Transport,
 };
 use crate::journal::{Journal, JournalError};
 use gonio_shared::instrument::InstrumentConfig;
@@ -18,24 +18,24 @@ use std::time::{Duration, Instant};
 
 #[derive(Debug, thiserror::Error)]
 pub enum MeasureError {
-    #[error("cannot open port {port}: {source}")]
-    Open { port: String, source: std::io::Error },
-    #[error("{port}: {source}")]
-    Handshake { port: String, source: LinkError },
+    #[error("cannot open port {port}: {error}")]
+    Open { port: String, error: std::io::Error },
+    #[error("{port}: {error}")]
+    Handshake { port: String, error: LinkError },
     #[error("--resume: {0} has no journal to continue")]
     NoJournal(String),
     #[error("{0} already holds a scan journal; continue it with --resume or choose another -o")]
     JournalExists(String),
-    #[error("cannot create {path}: {source}")]
-    CreateDir { path: String, source: std::io::Error },
+    #[error("cannot create {path}: {error}")]
+    CreateDir { path: String, error: std::io::Error },
     #[error(transparent)]
     Journal(#[from] JournalError),
     #[error(transparent)]
     Plan(#[from] crate::plan::file::PlanFileError),
-    #[error("{port}: {source} ({done} of {total} directions are in the journal)")]
+    #[error("{port}: {error} ({done} of {total} directions are in the journal)")]
     Run {
         port: String,
-        source: RunError,
+        error: RunError,
         done: usize,
         total: u32,
     },
@@ -77,9 +77,9 @@ impl Connection {
     /// Open `port` (through the seeded fault injector when `faults` is given) and handshake: a
     /// silent port or a firmware of another protocol is refused here, with nothing written.
     pub fn open(port: &str, faults: Option<FaultConfig>, opts: &RunOptions) -> Result<Self, MeasureError> {
-        let serial = SerialTransport::open(port).map_err(|source| MeasureError::Open {
+        let serial = SerialTransport::open(port).map_err(|error| MeasureError::Open {
             port: port.to_string(),
-            source,
+            error,
         })?;
         let fault_counts = SharedFaultCounts::default();
         let transport: Box<dyn Transport> = match faults {
@@ -87,9 +87,9 @@ impl Connection {
             None => Box::new(serial),
         };
         let transport = Link::connect(transport, opts.timing)
-            .map_err(|source| MeasureError::Handshake {
+            .map_err(|error| MeasureError::Handshake {
                 port: port.to_string(),
-                source,
+                error,
             })?
             .into_inner();
         Ok(Self {
@@ -117,9 +117,9 @@ impl Connection {
     ) -> Result<Measured, MeasureError> {
         let total = u32::try_from(plan.len()).unwrap_or(u32::MAX);
         let hash = super::plan_hash(plan)?;
-        std::fs::create_dir_all(out).map_err(|source| MeasureError::CreateDir {
+        std::fs::create_dir_all(out).map_err(|error| MeasureError::CreateDir {
             path: out.display().to_string(),
-            source,
+            error,
         })?;
         let mut journal = if resume {
             Journal::resume(out, hash, total)?
@@ -140,9 +140,9 @@ impl Connection {
             None => &mut reopen_plain,
         };
         let result = run_plan(self.transport, reopen, cfg, plan, &mut journal, progress, opts);
-        let summary = result.map_err(|source| MeasureError::Run {
+        let summary = result.map_err(|error| MeasureError::Run {
             port: self.port.clone(),
-            source,
+            error,
             done: journal.records().len(),
             total,
         })?;

@@ -44,8 +44,8 @@ pub enum CalibrationError {
     Fit(String),
     #[error("calibration: {0}")]
     Link(#[from] LinkError),
-    #[error("calibration: cannot open port {port}: {source}")]
-    Open { port: String, source: std::io::Error },
+    #[error("calibration: cannot open port {port}: {error}")]
+    Open { port: String, error: std::io::Error },
 }
 
 /// A fitted counts -> BRDF conversion (`calibration.toml`).
@@ -188,9 +188,9 @@ pub fn measure_reference(
     directions: &[Direction],
     timing: crate::link::LinkTiming,
 ) -> Result<Vec<Measurement>, CalibrationError> {
-    let t = SerialTransport::open(port).map_err(|source| CalibrationError::Open {
+    let t = SerialTransport::open(port).map_err(|error| CalibrationError::Open {
         port: port.to_string(),
-        source,
+        error,
     })?;
     let mut link = Link::connect(t, timing)?;
     link.prepare(&cfg.cast::<f32>())?;
@@ -216,7 +216,9 @@ pub fn fit(
         return Err(CalibrationError::Fit("no readings".into()));
     }
     if dark.iter().chain(white).any(|m| m.counts.len() != channels) {
-        return Err(CalibrationError::Fit("readings differ in their number of channels".into()));
+        return Err(CalibrationError::Fit(
+            "readings differ in their number of channels".into(),
+        ));
     }
     let exposure_us = white[0].exposure_us;
     if exposure_us == 0 {
@@ -233,10 +235,8 @@ pub fn fit(
             .iter()
             .map(|m| {
                 let cos_i = reached(&kin, &m.steps)[0].cos();
-                let x = rho(c) / std::f64::consts::PI
-                    * cos_i.max(0.0)
-                    * f64::from(m.exposure_us)
-                    / f64::from(exposure_us);
+                let x =
+                    rho(c) / std::f64::consts::PI * cos_i.max(0.0) * f64::from(m.exposure_us) / f64::from(exposure_us);
                 (x, f64::from(m.counts[c]) - dark_c)
             })
             .collect();

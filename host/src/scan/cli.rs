@@ -43,7 +43,12 @@ pub struct ScanArgs {
     #[arg(long)]
     pub calibration: Option<PathBuf>,
     /// Output folder (journal, plan, grid, exports, renders, report).
-    #[arg(short = 'o', long = "out", required_unless_present = "resume", conflicts_with = "resume")]
+    #[arg(
+        short = 'o',
+        long = "out",
+        required_unless_present = "resume",
+        conflicts_with = "resume"
+    )]
     pub out: Option<PathBuf>,
     /// Continue the scan in this folder after a crash, a kill or an unplugged cable.
     #[arg(long, value_name = "OUTDIR", conflicts_with_all = ["image", "sim", "grid", "target_psnr", "target_flip", "time_budget", "instrument", "calibration"])]
@@ -51,9 +56,10 @@ pub struct ScanArgs {
     /// Which shipped encoder estimates the material.
     #[arg(long, value_enum, default_value_t = ModelKind::Ggx)]
     pub model: ModelKind,
-    /// With --sim: instrument seconds per wall second while the device is busy.
-    #[arg(long, default_value_t = crate::sim::DEFAULT_SPEEDUP)]
-    pub speedup: f64,
+    /// With --sim: instrument seconds per wall second while the device is busy (default 100; with
+    /// --resume, the scan's own unless given).
+    #[arg(long)]
+    pub speedup: Option<f64>,
     /// With --sim: seed of the simulated detector's noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -77,7 +83,13 @@ pub struct ScanArgs {
 pub fn run_scan(a: ScanArgs) -> Result<()> {
     let options = run_options(a.hello_timeout, a.reconnect_wait);
     let (out, start) = match (&a.resume, &a.out, &a.image) {
-        (Some(dir), _, _) => (dir.clone(), Start::Resume { port: a.port.clone() }),
+        (Some(dir), _, _) => (
+            dir.clone(),
+            Start::Resume {
+                port: a.port.clone(),
+                speedup: a.speedup,
+            },
+        ),
         (None, Some(out), Some(image)) => {
             let rule = if let Some(db) = a.target_psnr {
                 if !db.is_finite() {
@@ -112,7 +124,7 @@ pub fn run_scan(a: ScanArgs) -> Result<()> {
                 port: a.port.clone(),
                 sim: a.sim.clone(),
                 seed: a.seed,
-                speedup: a.speedup,
+                speedup: a.speedup.unwrap_or(crate::sim::DEFAULT_SPEEDUP),
                 render_size: a.render_size,
                 env_spp: a.env_spp,
             };
@@ -127,7 +139,7 @@ pub fn run_scan(a: ScanArgs) -> Result<()> {
         faults: a.inject_faults,
     };
     let mut progress = TerminalProgress::new(0);
-    let result = super::run(&request, &mut progress, &mut |line| eprintln!("{line}"));
+    let result = super::run(&request, &mut progress, &mut |line| println!("{line}"));
     progress.finish();
     let outcome = result?;
     let r = &outcome.record;

@@ -71,16 +71,16 @@ pub enum ScanError {
     Calibration(#[from] calibration::CalibrationError),
     #[error(transparent)]
     Measure(#[from] link::MeasureError),
-    #[error("{path}: {source}")]
-    Io { path: String, source: std::io::Error },
+    #[error("{path}: {error}")]
+    Io { path: String, error: std::io::Error },
     #[error(transparent)]
     Output(#[from] outputs::OutputError),
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> ScanError + '_ {
-    move |source| ScanError::Io {
+    move |error| ScanError::Io {
         path: path.display().to_string(),
-        source,
+        error,
     }
 }
 
@@ -252,8 +252,12 @@ pub struct FreshScan {
 #[derive(Clone, Debug)]
 pub enum Start {
     Fresh(Box<FreshScan>),
-    /// Continue the scan in OUTDIR; a board may come back under another port path.
-    Resume { port: Option<String> },
+    /// Continue the scan in OUTDIR; a board may come back under another port path, and a
+    /// simulation may run at another speed.
+    Resume {
+        port: Option<String>,
+        speedup: Option<f64>,
+    },
 }
 
 #[derive(Clone, Debug)]
@@ -344,7 +348,10 @@ fn predictive(
         }
     }
     let deepest = plan.levels.last().map_or(1, |l| l.level);
-    Ok((deepest, format!("predictive {target}: not met by any level, deepest level used")))
+    Ok((
+        deepest,
+        format!("predictive {target}: not met by any level, deepest level used"),
+    ))
 }
 
 /// Convert every journaled reading to a BRDF value, indexed like the plan's directions.
@@ -405,7 +412,11 @@ fn write_file(path: &Path, bytes: &[u8]) -> Result<(), ScanError> {
 }
 
 /// Run a scan (fresh or resumed) to its outputs. Bad inputs are refused before OUTDIR is touched.
-pub fn run(req: &ScanRequest, progress: &mut dyn Progress, note: &mut dyn FnMut(&str)) -> Result<ScanOutcome, ScanError> {
+pub fn run(
+    req: &ScanRequest,
+    progress: &mut dyn Progress,
+    note: &mut dyn FnMut(&str),
+) -> Result<ScanOutcome, ScanError> {
     let mut times = PhaseTimes::default();
     let out = &req.out;
     let resume = matches!(req.start, Start::Resume { .. });
@@ -416,13 +427,20 @@ pub fn run(req: &ScanRequest, progress: &mut dyn Progress, note: &mut dyn FnMut(
     };
     let instrument = record.instrument(out)?;
     // The device: a simulation started here, or a port.
+    let speedup = match req.start {
+        Start::Resume { speedup: Some(s), .. } => s,
+        _ => record.source.speedup,
+    };
+    if !(speedup.is_finite() && speedup >= 1.0) {
+        return Err(ScanError::Input("--speedup must be >= 1".into()));
+    }
     let sim = match sim_model {
-        Some(model) => Some(SimHandle::spawn(Arc::new(model), record.source.speedup, None)?),
+        Some(model) => Some(SimHandle::spawn(Arc::new(model), speedup, None)?),
         None => None,
     };
     let port = match (&sim, &req.start, &record.source.port) {
         (Some(s), _, _) => s.path().display().to_string(),
-        (None, Start::Resume { port: Some(p) }, _) => p.clone(),
+        (None, Start::Resume { port: Some(p), .. }, _) => p.clone(),
         (None, _, Some(p)) => p.clone(),
         (None, _, None) => return Err(ScanError::Input("give --port PATH or --sim SCENE".into())),
     };
@@ -439,7 +457,11 @@ pub fn run(req: &ScanRequest, progress: &mut dyn Progress, note: &mut dyn FnMut(
     note(&format!(
         "measuring {} directions on {}",
         planned.wire.len(),
-        if sim.is_some() { "the virtual gonio" } else { port.as_str() }
+        if sim.is_some() {
+            "the virtual gonio"
+        } else {
+            port.as_str()
+        }
     ));
     let measured = connection.measure(&instrument, &planned.wire, out, resume, &req.options, progress)?;
     times.measure = t.elapsed().as_secs_f64();
@@ -521,12 +543,10 @@ fn prepare_fresh(
     }
     let given_cal = match &f.calibration {
         Some(p) => Some(Calibration::read(p)?),
-        None if f.sim.is_none() => {
-            return Err(ScanError::Input(
-                "a scan on a port needs --calibration CAL.toml (make one with `gonio calibrate --port PORT -o CAL.toml`)"
-                    .into(),
-            ))
-        }
+        None if f.sim.is_none() => return Err(ScanError::Input(
+            "a scan on a port needs --calibration CAL.toml (make one with `gonio calibrate --port PORT -o CAL.toml`)"
+                .into(),
+        )),
         None => None,
     };
     let t = Instant::now();
@@ -551,8 +571,19 @@ fn prepare_fresh(
         Some(c) => c,
         None => {
             let t = Instant::now();
-            let (text, path) = (scene_text.as_deref().unwrap_or(""), scene_path.as_deref().unwrap_or(Path::new("")));
-            let c = calibrate_sim(text, path, instrument, f.seed, f.speedup, calibration::DEFAULT_WHITE, options)?;
+            let (text, path) = (
+                scene_text.as_deref().unwrap_or(""),
+                scene_path.as_deref().unwrap_or(Path::new("")),
+            );
+            let c = calibrate_sim(
+                text,
+                path,
+                instrument,
+                f.seed,
+                f.speedup,
+                calibration::DEFAULT_WHITE,
+                options,
+            )?;
             times.calibrate = t.elapsed().as_secs_f64();
             note(&format!(
                 "calibrated on the virtual gonio ({}): dark {:?} counts, gain {:?} counts per 1/sr ({:.2} s)",

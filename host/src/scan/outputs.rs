@@ -158,7 +158,8 @@ pub fn write_all(i: &OutputInputs) -> Result<Report, OutputError> {
     // 4. Renders, and the truth's with scores and FLIP maps.
     let size = i.record.render_size;
     let mut scorer = Scorer::new(size).map_err(|e| OutputError::Render(e.to_string()))?;
-    let mut env = Scene::from_toml(ENV_SCENE, Path::new(ENV_SCENE_PATH)).map_err(|e| OutputError::Render(e.to_string()))?;
+    let mut env =
+        Scene::from_toml(ENV_SCENE, Path::new(ENV_SCENE_PATH)).map_err(|e| OutputError::Render(e.to_string()))?;
     env.camera.width = size;
     env.camera.height = size;
     env.settings.spp = i.record.env_spp;
@@ -170,7 +171,9 @@ pub fn write_all(i: &OutputInputs) -> Result<Report, OutputError> {
         &i.record.estimate,
     );
     for (name, image) in [("render-point.png", &point), ("render-env.png", &env_image)] {
-        image.write(&out.join(name)).map_err(|e| write_err(&out.join(name), e))?;
+        image
+            .write(&out.join(name))
+            .map_err(|e| write_err(&out.join(name), e))?;
         files.push(name.to_string());
     }
     let accuracy = match i.truth {
@@ -181,10 +184,13 @@ pub fn write_all(i: &OutputInputs) -> Result<Report, OutputError> {
             let mut scores = Vec::new();
             for (tag, truth, test) in [("point", &truth_point, &point), ("env", &truth_env, &env_image)] {
                 let truth_name = format!("truth-{tag}.png");
-                truth.write(&out.join(&truth_name)).map_err(|e| write_err(&out.join(&truth_name), e))?;
+                truth
+                    .write(&out.join(&truth_name))
+                    .map_err(|e| write_err(&out.join(&truth_name), e))?;
                 let (_, map) = compare(truth, test).map_err(|e| OutputError::Render(e.to_string()))?;
                 let flip_name = format!("flip-{tag}.png");
-                map.write_png(&out.join(&flip_name)).map_err(|e| write_err(&out.join(&flip_name), e))?;
+                map.write_png(&out.join(&flip_name))
+                    .map_err(|e| write_err(&out.join(&flip_name), e))?;
                 scores.push(score(truth, test).map_err(|e| OutputError::Render(e.to_string()))?);
                 files.push(truth_name);
                 files.push(flip_name);
@@ -317,7 +323,11 @@ pub fn finish_report(
     );
     match (&record.source.sim_scene, &record.source.port) {
         (Some(scene), _) => {
-            let _ = writeln!(md, "- device: the virtual gonio on `{scene}` (speedup {}x)", record.source.speedup);
+            let _ = writeln!(
+                md,
+                "- device: the virtual gonio on `{scene}` (speedup {}x)",
+                record.source.speedup
+            );
         }
         (None, Some(port)) => {
             let _ = writeln!(md, "- device: `{port}`");
@@ -336,7 +346,10 @@ pub fn finish_report(
         record.rule
     );
     let _ = writeln!(md, "\n## Counts\n");
-    let _ = writeln!(md, "| level | N | directions | cumulative | planned instrument time (s) |");
+    let _ = writeln!(
+        md,
+        "| level | N | directions | cumulative | planned instrument time (s) |"
+    );
     let _ = writeln!(md, "|---|---|---|---|---|");
     for l in &plan.levels {
         let _ = writeln!(
@@ -375,19 +388,28 @@ pub fn finish_report(
         let _ = writeln!(md, "| {name} | {t:.3} |");
     }
     if let Some(a) = &report.accuracy {
-        let _ = writeln!(md, "\n## Accuracy against the ground truth (the simulated scene's material)\n");
+        let _ = writeln!(
+            md,
+            "\n## Accuracy against the ground truth (the simulated scene's material)\n"
+        );
         let _ = writeln!(
             md,
             "Renders at {0}x{0} of the measured grid against the truth; RMSE and PSNR of the 8-bit sRGB images, mean LDR FLIP. FLIP maps: `flip-point.png`, `flip-env.png`.\n",
             record.render_size
         );
         let _ = writeln!(md, "| scene | RMSE | PSNR (dB) | FLIP |\n|---|---|---|---|");
-        for (name, c) in [("point light (render-point.png)", a.point), ("environment (render-env.png)", a.env)] {
+        for (name, c) in [
+            ("point light (render-point.png)", a.point),
+            ("environment (render-env.png)", a.env),
+        ] {
             let _ = writeln!(md, "| {name} | {:.4} | {:.2} | {:.4} |", c.rmse, c.psnr, c.flip);
         }
     }
     let _ = writeln!(md, "\n## measured.bsdf read back\n");
-    let _ = writeln!(md, "| theta_i | theta_o | phi_o | grid (mean RGB, 1/sr) | .bsdf | rel. diff |\n|---|---|---|---|---|---|");
+    let _ = writeln!(
+        md,
+        "| theta_i | theta_o | phi_o | grid (mean RGB, 1/sr) | .bsdf | rel. diff |\n|---|---|---|---|---|---|"
+    );
     for c in &report.rgl {
         let _ = writeln!(
             md,
