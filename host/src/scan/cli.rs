@@ -176,7 +176,7 @@ pub fn run_scan(a: ScanArgs) -> Result<()> {
         "measured.bsdf read back: largest relative difference from the grid {worst:.3} at {} check directions",
         outcome.report.rgl.len()
     );
-    println!("wrote {}/{{{}}}", out.display(), outcome.report.files.join(","));
+    println!("wrote in {}: {}", out.display(), outcome.report.files.join(", "));
     Ok(())
 }
 

@@ -99,6 +99,8 @@ impl RglCheck {
 }
 
 pub struct Report {
+    /// Host wall seconds of each output step, in order.
+    pub output_seconds: Vec<(&'static str, f64)>,
     pub accuracy: Option<Accuracy>,
     pub rgl: Vec<RglCheck>,
     pub files: Vec<String>,
@@ -125,15 +127,23 @@ fn renders(
 pub fn write_all(i: &OutputInputs) -> Result<Report, OutputError> {
     let out = i.out;
     let mut files = Vec::new();
+    let mut output_seconds = Vec::new();
+    let mut clock = std::time::Instant::now();
+    let mut lap = |name: &'static str| {
+        output_seconds.push((name, clock.elapsed().as_secs_f64()));
+        clock = std::time::Instant::now();
+    };
     // 1. The adaptive grid.
     let grid_json = grid_json(i).map_err(|e| write_err(&out.join("grid.json"), e))?;
     write_bytes(&out.join("grid.json"), grid_json.as_bytes())?;
     files.push("grid.json".to_string());
+    lap("grid.json");
     // 2. MERL table (90 x 90 x 180 half/difference bins).
     let merl = MerlTable::tabulate(i.grid);
     let merl_path = out.join("measured.binary");
     merl.write(&merl_path).map_err(|e| write_err(&merl_path, e))?;
     files.push("measured.binary".to_string());
+    lap("measured.binary (MERL tabulation)");
     // 3. RGL .bsdf, validated by reading it back before it is written.
     let rgl_alpha = rgl_alpha(i.record);
     let bytes = crate::brdf::rgl::tabulate_ggx(i.grid, rgl_alpha, RGL_INCIDENT, RGL_TABLE, RGL_GRID);
@@ -155,6 +165,7 @@ pub fn write_all(i: &OutputInputs) -> Result<Report, OutputError> {
         .collect();
     write_bytes(&bsdf_path, &bytes)?;
     files.push("measured.bsdf".to_string());
+    lap("measured.bsdf (RGL tabulation, read back)");
     // 4. Renders, and the truth's with scores and FLIP maps.
     let size = i.record.render_size;
     let mut scorer = Scorer::new(size).map_err(|e| OutputError::Render(e.to_string()))?;
@@ -176,6 +187,7 @@ pub fn write_all(i: &OutputInputs) -> Result<Report, OutputError> {
             .map_err(|e| write_err(&out.join(name), e))?;
         files.push(name.to_string());
     }
+    lap("renders of the measurement");
     let accuracy = match i.truth {
         None => None,
         Some(spec) => {
@@ -195,6 +207,7 @@ pub fn write_all(i: &OutputInputs) -> Result<Report, OutputError> {
                 files.push(truth_name);
                 files.push(flip_name);
             }
+            lap("renders of the truth, scores, FLIP maps");
             Some(Accuracy {
                 point: scores[0],
                 env: scores[1],
@@ -202,6 +215,7 @@ pub fn write_all(i: &OutputInputs) -> Result<Report, OutputError> {
         }
     };
     Ok(Report {
+        output_seconds,
         accuracy,
         rgl,
         files,
@@ -385,6 +399,10 @@ pub fn finish_report(
         ("outputs", times.outputs),
         ("total", times.total()),
     ] {
+        let _ = writeln!(md, "| {name} | {t:.3} |");
+    }
+    let _ = writeln!(md, "\nOutputs by step:\n\n| output step | seconds |\n|---|---|");
+    for (name, t) in &report.output_seconds {
         let _ = writeln!(md, "| {name} | {t:.3} |");
     }
     if let Some(a) = &report.accuracy {
