@@ -10,4 +10,5 @@ pub mod link;
 pub mod plan;
 pub mod plot;
 pub mod render;
+pub mod scan;
 pub mod sim;

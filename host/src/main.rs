@@ -50,6 +50,12 @@ enum Command {
     Sim(measure_cli::SimArgs),
     /// Stream a plan file to a gonio (or the virtual one), journal and collect the measurements.
     Measure(measure_cli::MeasureArgs),
+    /// Photo -> estimate -> plan -> measure -> reconstruct -> exports, renders and report, in one go.
+    Scan(gonio::scan::cli::ScanArgs),
+    /// Fit the counts -> BRDF conversion from a dark reading and a white reference.
+    Calibrate(gonio::scan::cli::CalibrateArgs),
+    /// Render the capture photo (examples/capture.toml) of a scan scene's sample.
+    Capture(gonio::scan::cli::CaptureArgs),
     /// Render an encoder dataset (examples/capture.toml with random or MERL materials).
     Dataset(gonio::encoder::cli::DatasetArgs),
     /// Train an encoder on a dataset and write ONNX (needs `--features train`).
@@ -110,6 +116,9 @@ fn run(cli: Cli) -> Result<()> {
         Command::Tradeoff(args) => gonio::plan::cli::run_tradeoff(args),
         Command::Sim(args) => measure_cli::run_sim(args),
         Command::Measure(args) => measure_cli::run_measure(args),
+        Command::Scan(args) => gonio::scan::cli::run_scan(args),
+        Command::Calibrate(args) => gonio::scan::cli::run_calibrate(args),
+        Command::Capture(args) => gonio::scan::cli::run_capture(args),
         Command::Dataset(args) => gonio::encoder::cli::run_dataset(args),
         Command::Train(args) => gonio::encoder::cli::run_train(args),
         Command::Estimate(args) => gonio::encoder::cli::run_estimate(args),

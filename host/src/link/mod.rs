@@ -6,6 +6,7 @@
 //!   does not have yet, journals each measurement as it arrives, and when the device goes away
 //!   (killed, unplugged) waits for it to come back and continues; and [`write_csv`].
 
+pub mod runner;
 pub mod session;
 pub mod transport;
 
@@ -13,6 +14,7 @@ use crate::journal::{Journal, JournalError};
 use gonio_shared::instrument::InstrumentConfig;
 use gonio_shared::kinematics::Kinematics;
 use gonio_shared::msg::{Direction, Measurement};
+pub use runner::{check_journal_state, print_run, run_options, Connection, MeasureError, Measured, TerminalProgress};
 pub use session::{Link, LinkError, LinkStats, LinkTiming, MeasurementSink};
 use std::path::Path;
 use std::time::{Duration, Instant};

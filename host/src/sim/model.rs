@@ -252,6 +252,31 @@ impl SimModel {
         })
     }
 
+    /// The same scene (detector, effects, instrument) with another sample in the holder: what a
+    /// calibration reference is measured with.
+    pub fn from_toml_with_material(
+        text: &str,
+        path: &Path,
+        instrument: InstrumentConfig<f64>,
+        seed: u64,
+        material: &str,
+    ) -> Result<Self, SceneError> {
+        let bad = |reason: String| SceneError {
+            path: path.display().to_string(),
+            reason,
+        };
+        let mut table: toml::Table =
+            toml::from_str(text).map_err(|e| bad(e.message().lines().next().unwrap_or("invalid TOML").to_string()))?;
+        match table.get_mut("object") {
+            Some(toml::Value::Table(object)) => {
+                object.insert("material".into(), toml::Value::String(material.to_string()));
+            }
+            _ => return Err(bad("no [object] table".into())),
+        }
+        let text = toml::to_string(&table).map_err(|e| bad(e.to_string()))?;
+        Self::from_toml(&text, path, instrument, seed)
+    }
+
     /// An ideal model of a material (no effects), for tests and code-built scans.
     pub fn ideal(spec: &str, instrument: InstrumentConfig<f64>) -> Result<Self, SceneError> {
         let text = format!(

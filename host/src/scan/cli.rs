@@ -1,0 +1,293 @@
+//! `gonio scan`, `gonio calibrate` and `gonio capture`: argument handling over [`super::run`] and
+//! [`super::calibration`].
+
+use super::calibration::{self, Calibration};
+use super::{FreshScan, LevelRule, ScanRequest, Start};
+use crate::encoder::ModelKind;
+use crate::link::{self, run_options, TerminalProgress};
+use anyhow::{bail, Context, Result};
+use std::io::BufRead;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+#[command(group = clap::ArgGroup::new("size").args(["grid", "target_psnr", "target_flip", "time_budget"]))]
+pub struct ScanArgs {
+    /// The capture photo of the sample (examples/capture.toml describes how to take it).
+    #[arg(required_unless_present = "resume")]
+    pub image: Option<PathBuf>,
+    /// Serial port of the gonio (needs --calibration).
+    #[arg(long, conflicts_with = "sim")]
+    pub port: Option<String>,
+    /// Scan the virtual gonio on this scan scene instead (calibrates itself unless --calibration).
+    #[arg(long)]
+    pub sim: Option<PathBuf>,
+    /// Outgoing grid N (N x N per incoming elevation, a power of two). Default 16 without a rule.
+    #[arg(long)]
+    pub grid: Option<usize>,
+    /// Smallest level whose render PSNR (dB), simulated on the estimate, reaches this.
+    #[arg(long)]
+    pub target_psnr: Option<f64>,
+    /// Smallest level whose mean FLIP, simulated on the estimate, is at most this.
+    #[arg(long)]
+    pub target_flip: Option<f64>,
+    /// Deepest level whose whole plan fits this time: 90s, 15m, 2h, 1h30m.
+    #[arg(long, value_parser = crate::plan::cli::parse_duration)]
+    pub time_budget: Option<f64>,
+    /// Deepest grid the target and budget rules consider.
+    #[arg(long, default_value_t = 16)]
+    pub max_grid: usize,
+    /// Instrument file (default: the shipped examples/gonio.toml).
+    #[arg(long)]
+    pub instrument: Option<PathBuf>,
+    /// Counts -> BRDF conversion from `gonio calibrate`.
+    #[arg(long)]
+    pub calibration: Option<PathBuf>,
+    /// Output folder (journal, plan, grid, exports, renders, report).
+    #[arg(
+        short = 'o',
+        long = "out",
+        required_unless_present = "resume",
+        conflicts_with = "resume"
+    )]
+    pub out: Option<PathBuf>,
+    /// Continue the scan in this folder after a crash, a kill or an unplugged cable.
+    #[arg(long, value_name = "OUTDIR", conflicts_with_all = ["image", "sim", "grid", "target_psnr", "target_flip", "time_budget", "instrument", "calibration"])]
+    pub resume: Option<PathBuf>,
+    /// Which shipped encoder estimates the material.
+    #[arg(long, value_enum, default_value_t = ModelKind::Ggx)]
+    pub model: ModelKind,
+    /// With --sim: instrument seconds per wall second while the device is busy (default 100; with
+    /// --resume, the scan's own unless given).
+    #[arg(long)]
+    pub speedup: Option<f64>,
+    /// With --sim: seed of the simulated detector's noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Seconds to wait for a lost device to come back.
+    #[arg(long, default_value_t = 30.0)]
+    pub reconnect_wait: f64,
+    /// Seconds to wait for the device's Hello.
+    #[arg(long, default_value_t = 2.0)]
+    pub hello_timeout: f64,
+    /// Side of the renders in pixels.
+    #[arg(long, default_value_t = 256)]
+    pub render_size: usize,
+    /// Samples per pixel of the environment-light render.
+    #[arg(long, default_value_t = 64)]
+    pub env_spp: u32,
+    /// Test the link: inject faults into whole frames (as `gonio measure --inject-faults`).
+    #[arg(long, value_name = "SPEC")]
+    pub inject_faults: Option<link::FaultConfig>,
+}
+
+pub fn run_scan(a: ScanArgs) -> Result<()> {
+    let options = run_options(a.hello_timeout, a.reconnect_wait);
+    let (out, start) = match (&a.resume, &a.out, &a.image) {
+        (Some(dir), _, _) => (
+            dir.clone(),
+            Start::Resume {
+                port: a.port.clone(),
+                speedup: a.speedup,
+            },
+        ),
+        (None, Some(out), Some(image)) => {
+            let rule = if let Some(db) = a.target_psnr {
+                if !db.is_finite() {
+                    bail!("--target-psnr must be finite");
+                }
+                LevelRule::TargetPsnr {
+                    db,
+                    max_grid: a.max_grid,
+                }
+            } else if let Some(flip) = a.target_flip {
+                if !(flip > 0.0 && flip < 1.0) {
+                    bail!("--target-flip {flip} must be in (0, 1)");
+                }
+                LevelRule::TargetFlip {
+                    flip,
+                    max_grid: a.max_grid,
+                }
+            } else if let Some(seconds) = a.time_budget {
+                LevelRule::TimeBudget {
+                    seconds,
+                    max_grid: a.max_grid,
+                }
+            } else {
+                LevelRule::Grid(a.grid.unwrap_or(16))
+            };
+            let fresh = FreshScan {
+                image: image.clone(),
+                model: a.model,
+                rule,
+                instrument: a.instrument.clone(),
+                calibration: a.calibration.clone(),
+                port: a.port.clone(),
+                sim: a.sim.clone(),
+                seed: a.seed,
+                speedup: a.speedup.unwrap_or(crate::sim::DEFAULT_SPEEDUP),
+                render_size: a.render_size,
+                env_spp: a.env_spp,
+            };
+            (out.clone(), Start::Fresh(Box::new(fresh)))
+        }
+        _ => bail!("give IMAGE and -o OUTDIR, or --resume OUTDIR"),
+    };
+    let request = ScanRequest {
+        out: out.clone(),
+        start,
+        options,
+        faults: a.inject_faults,
+    };
+    let mut progress = TerminalProgress::new(0);
+    let result = super::run(&request, &mut progress, &mut |line| println!("{line}"));
+    progress.finish();
+    let outcome = result?;
+    let r = &outcome.record;
+    let t = &outcome.times;
+    link::print_run(&outcome.measured);
+    println!(
+        "scan: {} directions (level {}, {}x{} x {} incoming; {}), estimate {}",
+        r.directions,
+        r.level,
+        1 << r.level,
+        1 << r.level,
+        r.incoming,
+        r.rule,
+        r.estimate
+    );
+    println!(
+        "host time {:.2} s: estimate {:.2}, plan {:.2}, calibrate {:.2}, stream/measure {:.2}, reconstruct {:.2}, outputs {:.2}",
+        t.total(),
+        t.estimate,
+        t.plan,
+        t.calibrate,
+        t.measure,
+        t.reconstruct,
+        t.outputs
+    );
+    if let Some(acc) = &outcome.report.accuracy {
+        println!(
+            "accuracy against the ground truth: point light PSNR {:.2} dB, FLIP {:.4}; environment PSNR {:.2} dB, FLIP {:.4}",
+            acc.point.psnr, acc.point.flip, acc.env.psnr, acc.env.flip
+        );
+    }
+    let worst = outcome.report.rgl.iter().map(|c| c.rel_diff()).fold(0.0, f64::max);
+    println!(
+        "measured.bsdf read back: largest relative difference from the grid {worst:.3} at {} check directions",
+        outcome.report.rgl.len()
+    );
+    println!("wrote in {}: {}", out.display(), outcome.report.files.join(", "));
+    Ok(())
+}
+
+#[derive(clap::Args)]
+pub struct CalibrateArgs {
+    /// Serial port of the gonio: you are asked to mount the light trap, then the white standard.
+    #[arg(long, conflicts_with = "sim", required_unless_present = "sim")]
+    pub port: Option<String>,
+    /// Calibrate the virtual gonio of this scan scene (its sample replaced by the references).
+    #[arg(long)]
+    pub sim: Option<PathBuf>,
+    #[arg(long)]
+    pub instrument: Option<PathBuf>,
+    /// The white standard (a Lambertian spec of known albedo).
+    #[arg(long, default_value = calibration::DEFAULT_WHITE)]
+    pub reference: String,
+    #[arg(short = 'o', long = "out")]
+    pub out: PathBuf,
+    #[arg(long, default_value_t = crate::sim::DEFAULT_SPEEDUP)]
+    pub speedup: f64,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    #[arg(long, default_value_t = 2.0)]
+    pub hello_timeout: f64,
+}
+
+pub fn run_calibrate(a: CalibrateArgs) -> Result<()> {
+    let cfg = crate::instrument::load_or_default(a.instrument.as_deref())?;
+    gonio_shared::kinematics::Kinematics::new(cfg).map_err(|e| anyhow::anyhow!("instrument: {e}"))?;
+    calibration::reference_albedo(&a.reference)?;
+    let options = run_options(a.hello_timeout, 0.0);
+    let cal = match (&a.sim, &a.port) {
+        (Some(scene), _) => {
+            let text = std::fs::read_to_string(scene).with_context(|| format!("scene {}", scene.display()))?;
+            // Refuse a bad scene (material, detector, effects) before any simulation starts.
+            crate::sim::model::SimModel::from_toml(&text, scene, cfg, a.seed)?;
+            super::calibrate_sim(&text, scene, cfg, a.seed, a.speedup, &a.reference, &options)?
+        }
+        (None, Some(port)) => {
+            let directions = calibration::directions();
+            let stdin = std::io::stdin();
+            let wait = |what: &str| -> Result<()> {
+                eprintln!("mount {what} in the sample holder, then press Enter");
+                let mut line = String::new();
+                if stdin.lock().read_line(&mut line)? == 0 {
+                    bail!("calibration aborted (no answer on stdin)");
+                }
+                Ok(())
+            };
+            wait("the light trap (dark reference)")?;
+            let dark = calibration::measure_reference(port, &cfg, &directions, options.timing)?;
+            wait(&format!("the white standard ({})", a.reference))?;
+            let white = calibration::measure_reference(port, &cfg, &directions, options.timing)?;
+            calibration::fit(&cfg, &a.reference, &dark, &white, port)?
+        }
+        (None, None) => bail!("give --port PATH or --sim SCENE"),
+    };
+    crate::fsio::write_bytes_atomically(&a.out, cal.to_toml().as_bytes())
+        .with_context(|| format!("cannot write {}", a.out.display()))?;
+    print_calibration(&cal);
+    println!("wrote {}", a.out.display());
+    Ok(())
+}
+
+fn print_calibration(c: &Calibration) {
+    let list = |v: &[f64], p: usize| v.iter().map(|x| format!("{x:.p$}")).collect::<Vec<_>>().join(", ");
+    println!(
+        "calibration ({} readings per reference, white {}, exposure {} us): dark [{}] counts; gain [{}] counts per (1/sr x cos theta_i); white fit residual [{}] (relative RMS)",
+        c.readings,
+        c.reference,
+        c.exposure_us,
+        list(&c.dark_counts, 2),
+        list(&c.gain, 1),
+        list(&c.fit_rel_rms, 5)
+    );
+}
+
+/// `gonio capture SCENE -o PHOTO.png`: the capture photo (`examples/capture.toml`: sphere, point
+/// light 30 deg off the view axis) of a scan scene's sample, as the encoder expects it.
+#[derive(clap::Args)]
+pub struct CaptureArgs {
+    /// Scan scene whose `[object] material` is photographed.
+    pub scene: PathBuf,
+    /// .png (tone-mapped sRGB) or .exr (linear).
+    #[arg(short = 'o', long = "out")]
+    pub out: PathBuf,
+    /// Image side in pixels.
+    #[arg(long, default_value_t = 256)]
+    pub size: usize,
+}
+
+/// The capture photo of `spec` at `size` pixels.
+pub fn capture_photo(spec: &str, size: usize) -> Result<crate::render::Image> {
+    if !(16..=4096).contains(&size) {
+        bail!("--size {size} must be in 16..=4096");
+    }
+    let scene = crate::encoder::dataset::capture_scene(spec, size).map_err(anyhow::Error::msg)?;
+    Ok(crate::render::render_with(&scene, &scene.settings, &|| {})?)
+}
+
+pub fn run_capture(a: CaptureArgs) -> Result<()> {
+    crate::render::image::ImageFormat::from_path(&a.out)?;
+    let model = crate::sim::model::SimModel::load(&a.scene, crate::instrument::default_instrument(), 0)?;
+    let image = capture_photo(&model.material_spec, a.size)?;
+    image.write(&a.out)?;
+    println!(
+        "captured {} ({}x{}, examples/capture.toml) -> {}",
+        model.material_spec,
+        a.size,
+        a.size,
+        a.out.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,647 @@
+//! `gonio scan`: the whole chain in one command, photo -> estimate -> plan -> stream over serial ->
+//! measure -> reconstruct -> outputs, against a board (`--port`) or the virtual gonio (`--sim`).
+//!
+//! Phases (each timed on the host clock and reported in `report.md`):
+//! 1. **estimate**: `plan::photo::estimate_from_photo` (encoder + diffuse/specular split);
+//! 2. **plan**: `plan::Planner` with nested levels; the level comes from the user's rule (`--grid`,
+//!    the predictive `--target-psnr` / `--target-flip`, or `--time-budget`, see [`LevelRule`]);
+//!    the encoded plan is re-simulated before it is sent (`Plan::check_encoded`);
+//! 3. **calibrate**: with `--calibration CAL.toml` that file; against `--sim` without one, the scan
+//!    calibrates itself first on the same simulated instrument (a light trap and the white standard
+//!    in the sample holder, see [`calibration`]); against a port without one it refuses;
+//! 4. **measure**: handshake (a firmware of another protocol is refused), home, stream, collect,
+//!    acknowledge, through `link::Connection` (the code `gonio measure` runs), with the journal in
+//!    OUTDIR and a progress bar;
+//! 5. **reconstruct**: counts -> BRDF with the calibration at the pose each reading was taken,
+//!    then `Plan::reconstruct` of the chosen level;
+//! 6. **outputs** ([`outputs`]): `grid.json`, `measured.binary`, `measured.bsdf`, renders, and in
+//!    simulation the scores against the ground truth; `report.md`.
+//!
+//! ## Resume
+//! Once a gonio has answered the handshake, and before the first direction is sent, OUTDIR gets
+//! everything a resume needs: `scan.toml` (the inputs: image, estimate to full precision, plan
+//! rule and level, instrument file text, the source (port, or the simulated scene's path and text,
+//! seed and speedup), render settings), `plan.bin` (the plan file `gonio measure` reads) and
+//! `calibration.toml`. `gonio scan --resume OUTDIR` re-reads them, plans again from the stored
+//! estimate (the planner is deterministic) and refuses to go on unless that plan encodes to the
+//! stored `plan.bin` byte for byte; then it continues the journal. The outputs depend only on the
+//! journal's readings, the plan and the calibration, so they equal an uninterrupted scan's.
+
+pub mod calibration;
+pub mod cli;
+pub mod outputs;
+
+use crate::encoder::ModelKind;
+use crate::link::{self, Connection, FaultConfig, Progress, RunOptions};
+use crate::plan::{Estimate, Plan, PlanConfig, Planner, Spacing, Strategy};
+use crate::sim::{model::SimModel, SimHandle};
+use calibration::Calibration;
+use glam::DVec3;
+use gonio_shared::instrument::InstrumentConfig;
+use gonio_shared::msg::Direction;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+pub const SCAN_FILE: &str = "scan.toml";
+pub const PLAN_FILE: &str = "plan.bin";
+pub const CALIBRATION_FILE: &str = "calibration.toml";
+/// Version of `scan.toml`.
+pub const SCAN_FORMAT: u32 = 1;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ScanError {
+    /// A bad input, said in one line.
+    #[error("{0}")]
+    Input(String),
+    #[error(transparent)]
+    Photo(#[from] crate::plan::photo::PhotoError),
+    #[error(transparent)]
+    Plan(#[from] crate::plan::PlanError),
+    #[error(transparent)]
+    PlanFile(#[from] crate::plan::file::PlanFileError),
+    #[error(transparent)]
+    Instrument(#[from] crate::instrument::InstrumentFileError),
+    #[error(transparent)]
+    Scene(#[from] crate::sim::model::SceneError),
+    #[error(transparent)]
+    Sim(#[from] crate::sim::SimError),
+    #[error(transparent)]
+    Calibration(#[from] calibration::CalibrationError),
+    #[error(transparent)]
+    Measure(#[from] link::MeasureError),
+    #[error("{path}: {error}")]
+    Io { path: String, error: std::io::Error },
+    #[error(transparent)]
+    Output(#[from] outputs::OutputError),
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> ScanError + '_ {
+    move |error| ScanError::Io {
+        path: path.display().to_string(),
+        error,
+    }
+}
+
+/// How the plan's level is chosen.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LevelRule {
+    /// N x N outgoing nodes (a power of two).
+    Grid(usize),
+    /// Smallest level whose capture render, simulated on the estimate, reaches this PSNR (dB).
+    TargetPsnr { db: f64, max_grid: usize },
+    /// Smallest level whose simulated mean FLIP is at most this.
+    TargetFlip { flip: f64, max_grid: usize },
+    /// Deepest level whose whole plan fits this many instrument seconds.
+    TimeBudget { seconds: f64, max_grid: usize },
+}
+
+/// Planner level of an N x N grid.
+pub fn level_of(n: usize) -> Result<usize, ScanError> {
+    if n < 2 || !n.is_power_of_two() || n.trailing_zeros() as usize > crate::plan::MAX_LEVEL {
+        return Err(ScanError::Input(format!(
+            "grid {n} must be a power of two from 2 to {}",
+            1usize << crate::plan::MAX_LEVEL
+        )));
+    }
+    Ok(n.trailing_zeros() as usize)
+}
+
+/// Where the readings come from.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SourceRecord {
+    /// A serial port (a board, or a `gonio sim` started by hand).
+    pub port: Option<String>,
+    /// The virtual gonio's scan scene: its path (anchors relative paths and names it in messages)
+    /// and its text as it was at the start (what a resume simulates).
+    pub sim_scene: Option<String>,
+    pub sim_scene_text: Option<String>,
+    pub seed: u64,
+    pub speedup: f64,
+}
+
+/// `OUTDIR/scan.toml`: the inputs of a scan, enough to resume it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScanRecord {
+    pub format: u32,
+    pub image: String,
+    /// The encoder model and its raw outputs (`ModelKind::outputs` order).
+    pub encoder: String,
+    pub encoder_outputs: Vec<f64>,
+    /// The estimate the plan was built from (a spec that parses back to the same f64 values).
+    pub estimate: String,
+    /// How the level was chosen, in words.
+    pub rule: String,
+    pub strategy: String,
+    pub spacing: String,
+    pub incoming: usize,
+    pub max_level: usize,
+    pub level: usize,
+    pub directions: usize,
+    /// FNV-1a 64 of `plan.bin`, hex.
+    pub plan_hash: String,
+    /// The instrument file's text (the shipped one when none was given).
+    pub instrument_toml: String,
+    pub render_size: usize,
+    pub env_spp: u32,
+    pub source: SourceRecord,
+}
+
+impl ScanRecord {
+    pub fn read(dir: &Path) -> Result<Self, ScanError> {
+        let path = dir.join(SCAN_FILE);
+        let text = std::fs::read_to_string(&path).map_err(|e| {
+            ScanError::Input(format!(
+                "--resume: {} has no readable {SCAN_FILE} ({e}); was it made by gonio scan?",
+                dir.display()
+            ))
+        })?;
+        let record: ScanRecord = toml::from_str(&text).map_err(|e| {
+            ScanError::Input(format!(
+                "{}: {}",
+                path.display(),
+                e.message().lines().next().unwrap_or("invalid TOML")
+            ))
+        })?;
+        if record.format != SCAN_FORMAT {
+            return Err(ScanError::Input(format!(
+                "{}: format {} is not {SCAN_FORMAT}",
+                path.display(),
+                record.format
+            )));
+        }
+        Ok(record)
+    }
+
+    pub fn instrument(&self, dir: &Path) -> Result<InstrumentConfig<f64>, ScanError> {
+        Ok(crate::instrument::parse(&self.instrument_toml, &dir.join(SCAN_FILE))?)
+    }
+
+    pub fn plan_config(&self) -> Result<PlanConfig, ScanError> {
+        use clap::ValueEnum;
+        let strategy = Strategy::from_str(&self.strategy, true)
+            .map_err(|_| ScanError::Input(format!("{SCAN_FILE}: unknown strategy {:?}", self.strategy)))?;
+        let spacing = Spacing::from_str(&self.spacing, true)
+            .map_err(|_| ScanError::Input(format!("{SCAN_FILE}: unknown spacing {:?}", self.spacing)))?;
+        Ok(PlanConfig {
+            strategy,
+            spacing,
+            k: self.incoming,
+            max_level: self.max_level,
+            bound: false,
+        })
+    }
+
+    pub fn estimate(&self) -> Result<Estimate, ScanError> {
+        let model = crate::brdf::spec::parse_analytic(&self.estimate)
+            .map_err(|e| ScanError::Input(format!("{SCAN_FILE}: estimate: {e}")))?;
+        Ok(Estimate { model })
+    }
+
+    /// The simulated scene, if the source is the virtual gonio.
+    pub fn sim_model(&self, instrument: InstrumentConfig<f64>) -> Result<Option<SimModel>, ScanError> {
+        match (&self.source.sim_scene, &self.source.sim_scene_text) {
+            (Some(path), Some(text)) => Ok(Some(SimModel::from_toml(
+                text,
+                Path::new(path),
+                instrument,
+                self.source.seed,
+            )?)),
+            _ => Ok(None),
+        }
+    }
+}
+
+/// Host wall time per phase, seconds.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct PhaseTimes {
+    pub estimate: f64,
+    pub plan: f64,
+    pub calibrate: f64,
+    pub measure: f64,
+    pub reconstruct: f64,
+    pub outputs: f64,
+}
+
+impl PhaseTimes {
+    pub fn total(&self) -> f64 {
+        self.estimate + self.plan + self.calibrate + self.measure + self.reconstruct + self.outputs
+    }
+}
+
+/// A new scan's inputs.
+#[derive(Clone, Debug)]
+pub struct FreshScan {
+    pub image: PathBuf,
+    pub model: ModelKind,
+    pub rule: LevelRule,
+    pub instrument: Option<PathBuf>,
+    pub calibration: Option<PathBuf>,
+    /// `Some(port)` or `None` with `sim`.
+    pub port: Option<String>,
+    pub sim: Option<PathBuf>,
+    pub seed: u64,
+    pub speedup: f64,
+    pub render_size: usize,
+    pub env_spp: u32,
+}
+
+#[derive(Clone, Debug)]
+pub enum Start {
+    Fresh(Box<FreshScan>),
+    /// Continue the scan in OUTDIR; a board may come back under another port path, and a
+    /// simulation may run at another speed.
+    Resume {
+        port: Option<String>,
+        speedup: Option<f64>,
+    },
+}
+
+#[derive(Clone, Debug)]
+pub struct ScanRequest {
+    pub out: PathBuf,
+    pub start: Start,
+    pub options: RunOptions,
+    pub faults: Option<FaultConfig>,
+}
+
+/// What a finished scan did.
+pub struct ScanOutcome {
+    pub record: ScanRecord,
+    pub measured: link::Measured,
+    pub report: outputs::Report,
+    pub times: PhaseTimes,
+}
+
+/// A planned scan, ready to send.
+struct Planned {
+    plan: Plan,
+    wire: Vec<Direction>,
+    bytes: Vec<u8>,
+}
+
+fn encode_checked(plan: Plan, instrument: &InstrumentConfig<f64>) -> Result<Planned, ScanError> {
+    let wire = plan.wire();
+    let bytes = crate::plan::file::encode_plan(&wire)?;
+    plan.check_encoded(instrument, &bytes)?;
+    Ok(Planned { plan, wire, bytes })
+}
+
+/// Plan with `rule` (the same rules as `gonio plan`; the predictive one renders the capture
+/// scene of each level's reconstruction of the estimate against the estimate itself).
+fn plan_with_rule(
+    instrument: &InstrumentConfig<f64>,
+    estimate: &Estimate,
+    rule: LevelRule,
+) -> Result<(Plan, usize, String), ScanError> {
+    let max_level = match rule {
+        LevelRule::Grid(n) => level_of(n)?,
+        LevelRule::TargetPsnr { max_grid, .. }
+        | LevelRule::TargetFlip { max_grid, .. }
+        | LevelRule::TimeBudget { max_grid, .. } => level_of(max_grid)?,
+    };
+    let config = PlanConfig {
+        max_level,
+        bound: false,
+        ..PlanConfig::default()
+    };
+    let plan = Planner::new(*instrument, estimate.clone())?.plan(&config)?;
+    let (level, text) = match rule {
+        LevelRule::Grid(n) => (max_level, format!("grid {n}")),
+        LevelRule::TimeBudget { seconds, .. } => {
+            let level = plan.level_within_budget(seconds).ok_or_else(|| {
+                ScanError::Input(format!(
+                    "--time-budget {seconds:.0} s: even the first level needs {:.0} s",
+                    plan.levels.first().map_or(0.0, |l| l.cumulative_seconds)
+                ))
+            })?;
+            (level, format!("time budget {seconds:.0} s"))
+        }
+        LevelRule::TargetPsnr { db, .. } => predictive(&plan, estimate, |c| c.psnr >= db, &format!("PSNR >= {db} dB"))?,
+        LevelRule::TargetFlip { flip, .. } => {
+            predictive(&plan, estimate, |c| c.flip <= flip, &format!("FLIP <= {flip}"))?
+        }
+    };
+    Ok((plan, level, text))
+}
+
+/// Render side of the predictive rule's simulated captures (as `gonio plan`).
+const PREDICTIVE_SIZE: usize = 128;
+
+fn predictive(
+    plan: &Plan,
+    estimate: &Estimate,
+    meets: impl Fn(&crate::render::metrics::Comparison) -> bool,
+    target: &str,
+) -> Result<(usize, String), ScanError> {
+    use crate::plan::report::{score, Scorer};
+    let mut scorer = Scorer::new(PREDICTIVE_SIZE)?;
+    let reference = scorer.render(estimate.material());
+    let values = plan.measure(estimate.material().as_ref());
+    for l in &plan.levels {
+        let image = scorer.render(Box::new(plan.reconstruct(l.level, &values)?));
+        if meets(&score(&reference, &image)?) {
+            return Ok((l.level, format!("predictive {target} (simulated on the estimate)")));
+        }
+    }
+    let deepest = plan.levels.last().map_or(1, |l| l.level);
+    Ok((
+        deepest,
+        format!("predictive {target}: not met by any level, deepest level used"),
+    ))
+}
+
+/// Convert every journaled reading to a BRDF value, indexed like the plan's directions.
+pub fn calibrated_values(
+    journal: &crate::journal::Journal,
+    plan_len: usize,
+    instrument: &InstrumentConfig<f64>,
+    cal: &Calibration,
+) -> Result<Vec<DVec3>, ScanError> {
+    let kin = gonio_shared::kinematics::Kinematics::new(*instrument)
+        .map_err(|e| ScanError::Input(format!("instrument: {e}")))?;
+    let mut values = vec![DVec3::ZERO; plan_len];
+    for (index, r) in journal.records() {
+        let cos_i = link::reached(&kin, &r.steps)[0].cos();
+        let f = cal
+            .brdf(&r.counts, cos_i, r.exposure_us)
+            .map_err(|e| ScanError::Input(format!("direction {index}: {e}")))?;
+        if let Some(v) = values.get_mut(*index as usize) {
+            *v = f;
+        }
+    }
+    Ok(values)
+}
+
+/// The self-calibration of a scan against the virtual gonio: the scene's instrument with a light
+/// trap, then the white standard, in the sample holder.
+pub fn calibrate_sim(
+    scene_text: &str,
+    scene_path: &Path,
+    instrument: InstrumentConfig<f64>,
+    seed: u64,
+    speedup: f64,
+    reference: &str,
+    options: &RunOptions,
+) -> Result<Calibration, ScanError> {
+    calibration::reference_albedo(reference)?;
+    let directions = calibration::directions();
+    let mut sets = Vec::new();
+    for material in [calibration::DARK_TRAP, reference] {
+        let model = SimModel::from_toml_with_material(scene_text, scene_path, instrument, seed, material)?;
+        let sim = SimHandle::spawn(Arc::new(model), speedup, None)?;
+        let port = sim.path().display().to_string();
+        let readings = calibration::measure_reference(&port, &instrument, &directions, options.timing);
+        sim.stop();
+        sets.push(readings?);
+    }
+    Ok(calibration::fit(
+        &instrument,
+        reference,
+        &sets[0],
+        &sets[1],
+        &format!("sim:{}", scene_path.display()),
+    )?)
+}
+
+fn write_file(path: &Path, bytes: &[u8]) -> Result<(), ScanError> {
+    crate::fsio::write_bytes_atomically(path, bytes).map_err(io_err(path))
+}
+
+/// Run a scan (fresh or resumed) to its outputs. Bad inputs are refused before OUTDIR is touched.
+pub fn run(
+    req: &ScanRequest,
+    progress: &mut dyn Progress,
+    note: &mut dyn FnMut(&str),
+) -> Result<ScanOutcome, ScanError> {
+    let mut times = PhaseTimes::default();
+    let out = &req.out;
+    let resume = matches!(req.start, Start::Resume { .. });
+    link::check_journal_state(out, resume)?;
+    let (record, planned, cal, sim_model) = match &req.start {
+        Start::Fresh(f) => prepare_fresh(f, out, &req.options, &mut times, note)?,
+        Start::Resume { .. } => prepare_resume(out, &mut times)?,
+    };
+    let instrument = record.instrument(out)?;
+    // The device: a simulation started here, or a port.
+    let speedup = match req.start {
+        Start::Resume { speedup: Some(s), .. } => s,
+        _ => record.source.speedup,
+    };
+    if !(speedup.is_finite() && speedup >= 1.0) {
+        return Err(ScanError::Input("--speedup must be >= 1".into()));
+    }
+    let sim = match sim_model {
+        Some(model) => Some(SimHandle::spawn(Arc::new(model), speedup, None)?),
+        None => None,
+    };
+    let port = match (&sim, &req.start, &record.source.port) {
+        (Some(s), _, _) => s.path().display().to_string(),
+        (None, Start::Resume { port: Some(p), .. }, _) => p.clone(),
+        (None, _, Some(p)) => p.clone(),
+        (None, _, None) => return Err(ScanError::Input("give --port PATH or --sim SCENE".into())),
+    };
+    let t = Instant::now();
+    let connection = Connection::open(&port, req.faults, &req.options)?;
+    // A gonio answered: store what a resume needs, then measure.
+    if !resume {
+        std::fs::create_dir_all(out).map_err(io_err(out))?;
+        write_file(&out.join(PLAN_FILE), &planned.bytes)?;
+        write_file(&out.join(CALIBRATION_FILE), cal.to_toml().as_bytes())?;
+        let text = toml::to_string(&record).map_err(|e| ScanError::Input(format!("{SCAN_FILE}: {e}")))?;
+        write_file(&out.join(SCAN_FILE), text.as_bytes())?;
+    }
+    note(&format!(
+        "measuring {} directions on {}",
+        planned.wire.len(),
+        if sim.is_some() {
+            "the virtual gonio"
+        } else {
+            port.as_str()
+        }
+    ));
+    let measured = connection.measure(&instrument, &planned.wire, out, resume, &req.options, progress)?;
+    times.measure = t.elapsed().as_secs_f64();
+    if let Some(sim) = sim {
+        sim.stop();
+    }
+    let t = Instant::now();
+    let values = calibrated_values(&measured.journal, planned.wire.len(), &instrument, &cal)?;
+    let grid = planned.plan.reconstruct(record.level, &values)?;
+    times.reconstruct = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let truth = record.sim_model(instrument)?.map(|m| m.material_spec);
+    let report = outputs::write_all(&outputs::OutputInputs {
+        out,
+        record: &record,
+        plan: &planned.plan,
+        values: &values,
+        journal: &measured.journal,
+        instrument: &instrument,
+        calibration: &cal,
+        grid: &grid,
+        truth: truth.as_deref(),
+    })?;
+    times.outputs = t.elapsed().as_secs_f64();
+    let report = outputs::finish_report(out, report, &record, &planned.plan, &measured, &times)?;
+    Ok(ScanOutcome {
+        record,
+        measured,
+        report,
+        times,
+    })
+}
+
+type Prepared = (ScanRecord, Planned, Calibration, Option<SimModel>);
+
+fn prepare_fresh(
+    f: &FreshScan,
+    out: &Path,
+    options: &RunOptions,
+    times: &mut PhaseTimes,
+    note: &mut dyn FnMut(&str),
+) -> Result<Prepared, ScanError> {
+    if out.join(SCAN_FILE).exists() {
+        return Err(ScanError::Input(format!(
+            "{} already holds a scan; continue it with --resume or choose another -o",
+            out.display()
+        )));
+    }
+    if !(16..=2048).contains(&f.render_size) || !(1..=4096).contains(&f.env_spp) {
+        return Err(ScanError::Input(
+            "--render-size must be in 16..=2048 and --env-spp in 1..=4096".into(),
+        ));
+    }
+    // Every input is read and checked before the (slow) estimate and plan.
+    let (instrument_toml, origin) = match &f.instrument {
+        Some(p) => (std::fs::read_to_string(p).map_err(io_err(p))?, p.clone()),
+        None => (
+            crate::instrument::DEFAULT_INSTRUMENT_TOML.to_string(),
+            PathBuf::from("examples/gonio.toml"),
+        ),
+    };
+    let instrument = crate::instrument::parse(&instrument_toml, &origin)?;
+    gonio_shared::kinematics::Kinematics::new(instrument)
+        .map_err(|e| ScanError::Input(format!("{}: {e}", origin.display())))?;
+    let (sim_model, scene_text, scene_path) = match &f.sim {
+        Some(scene) => {
+            let text = std::fs::read_to_string(scene).map_err(io_err(scene))?;
+            let abs = std::path::absolute(scene).unwrap_or_else(|_| scene.clone());
+            let model = SimModel::from_toml(&text, &abs, instrument, f.seed)?;
+            (Some(model), Some(text), Some(abs))
+        }
+        None => (None, None, None),
+    };
+    if f.sim.is_none() && f.port.is_none() {
+        return Err(ScanError::Input("give --port PATH or --sim SCENE".into()));
+    }
+    if !(f.speedup.is_finite() && f.speedup >= 1.0) {
+        return Err(ScanError::Input("--speedup must be >= 1".into()));
+    }
+    let given_cal = match &f.calibration {
+        Some(p) => Some(Calibration::read(p)?),
+        None if f.sim.is_none() => return Err(ScanError::Input(
+            "a scan on a port needs --calibration CAL.toml (make one with `gonio calibrate --port PORT -o CAL.toml`)"
+                .into(),
+        )),
+        None => None,
+    };
+    let t = Instant::now();
+    let photo = crate::plan::photo::estimate_from_photo(&f.image, f.model)?;
+    times.estimate = t.elapsed().as_secs_f64();
+    note(&format!("estimate: {} ({:.2} s)", photo.spec(), times.estimate));
+    let t = Instant::now();
+    let (plan, level, rule) = plan_with_rule(&instrument, &photo.estimate, f.rule)?;
+    let config = plan.config.clone();
+    let planned = encode_checked(plan.truncate(level), &instrument)?;
+    times.plan = t.elapsed().as_secs_f64();
+    note(&format!(
+        "plan: {} directions, level {level} ({}x{} x {} incoming; {rule}), {:.1} min instrument time ({:.2} s)",
+        planned.wire.len(),
+        1 << level,
+        1 << level,
+        planned.plan.thetas.len(),
+        planned.plan.total_seconds() / 60.0,
+        times.plan
+    ));
+    let cal = match given_cal {
+        Some(c) => c,
+        None => {
+            let t = Instant::now();
+            let (text, path) = (
+                scene_text.as_deref().unwrap_or(""),
+                scene_path.as_deref().unwrap_or(Path::new("")),
+            );
+            let c = calibrate_sim(
+                text,
+                path,
+                instrument,
+                f.seed,
+                f.speedup,
+                calibration::DEFAULT_WHITE,
+                options,
+            )?;
+            times.calibrate = t.elapsed().as_secs_f64();
+            note(&format!(
+                "calibrated on the virtual gonio ({}): dark {:?} counts, gain {:?} counts per 1/sr ({:.2} s)",
+                c.reference,
+                c.dark_counts.iter().map(|v| format!("{v:.1}")).collect::<Vec<_>>(),
+                c.gain.iter().map(|v| format!("{v:.1}")).collect::<Vec<_>>(),
+                times.calibrate
+            ));
+            c
+        }
+    };
+    let record = ScanRecord {
+        format: SCAN_FORMAT,
+        image: f.image.display().to_string(),
+        encoder: photo.kind.name().to_string(),
+        encoder_outputs: photo.outputs.clone(),
+        estimate: photo.spec(),
+        rule,
+        strategy: config.strategy.to_string(),
+        spacing: config.spacing.to_string(),
+        incoming: config.k,
+        max_level: config.max_level,
+        level,
+        directions: planned.wire.len(),
+        plan_hash: format!("{:016x}", crate::journal::fnv64(&planned.bytes)),
+        instrument_toml,
+        render_size: f.render_size,
+        env_spp: f.env_spp,
+        source: SourceRecord {
+            port: f.port.clone(),
+            sim_scene: scene_path.map(|p| p.display().to_string()),
+            sim_scene_text: scene_text,
+            seed: f.seed,
+            speedup: f.speedup,
+        },
+    };
+    Ok((record, planned, cal, sim_model))
+}
+
+fn prepare_resume(out: &Path, times: &mut PhaseTimes) -> Result<Prepared, ScanError> {
+    let record = ScanRecord::read(out)?;
+    let instrument = record.instrument(out)?;
+    let cal = Calibration::read(&out.join(CALIBRATION_FILE))?;
+    let plan_path = out.join(PLAN_FILE);
+    let stored = std::fs::read(&plan_path).map_err(io_err(&plan_path))?;
+    crate::plan::file::decode_plan(&stored).map_err(|e| ScanError::Input(format!("{}: {e}", plan_path.display())))?;
+    let t = Instant::now();
+    let plan = Planner::new(instrument, record.estimate()?)?
+        .plan(&record.plan_config()?)?
+        .truncate(record.level);
+    let planned = encode_checked(plan, &instrument)?;
+    times.plan = t.elapsed().as_secs_f64();
+    if planned.bytes != stored {
+        return Err(ScanError::Input(format!(
+            "{}: does not match the plan of {SCAN_FILE} (made by another gonio version, or edited); cannot resume",
+            plan_path.display()
+        )));
+    }
+    let sim_model = record.sim_model(instrument)?;
+    Ok((record, planned, cal, sim_model))
+}
