@@ -337,7 +337,11 @@ fn sample_or_nudge(warp: &SliceWarp, u: DVec2, fine_n: usize) -> Option<DVec3> {
 /// The unreachable rule's nudge: the nearest reachable direction to `wo` on two paths (away from
 /// `wi` in their common plane, out of the blocked cone; toward the normal, inside the limits and the
 /// horizon margin), `NUDGE_STEP` at a time up to `NUDGE_MAX`.
-fn nudge(kin: &Kinematics<f64>, wi: DVec3, wo: DVec3) -> Option<(DVec3, Candidates)> {
+fn nudge(
+    reachable: &dyn Fn(DVec3, DVec3) -> Result<Candidates, Unreachable>,
+    wi: DVec3,
+    wo: DVec3,
+) -> Option<(DVec3, Candidates)> {
     // Axis of the rotation away from wi; wo parallel to wi (the pole at normal incidence) has no
     // plane with it, so take the one through the normal and x (any plane serves: isotropy).
     let away = wi.cross(wo).try_normalize().unwrap_or(DVec3::Y);
@@ -351,12 +355,44 @@ fn nudge(kin: &Kinematics<f64>, wi: DVec3, wo: DVec3) -> Option<(DVec3, Candidat
             down.map(|d| glam::DQuat::from_axis_angle(d, angle) * wo),
         ];
         for w in tries.into_iter().flatten() {
-            if let Ok(c) = Candidates::of(kin, wi, w) {
+            if let Ok(c) = reachable(wi, w) {
                 return Some((w, c));
             }
         }
     }
     None
+}
+
+/// The firmware's acceptance test of one direction (`gonio_firmware::plan::check_direction`: f32
+/// IK, rounding to steps, the soft limits of the pose the steps reach, and the arms' separation
+/// guard band), from the rest pose. The f64 kinematics alone accept directions at the blocked
+/// cone's exact edge, where nudged nodes land, and the firmware's guard band refuses them.
+struct FirmwareCheck {
+    kin: Kinematics<f32>,
+    guard: gonio_firmware::separation::SeparationGuard,
+}
+
+impl FirmwareCheck {
+    fn new(instrument: &InstrumentConfig<f64>) -> Result<Self, PlanError> {
+        let kin = Kinematics::<f32>::new(instrument.cast::<f32>())
+            .map_err(|e| PlanError::Invalid(format!("instrument: {e:?}")))?;
+        let guard = gonio_firmware::separation::SeparationGuard::new(&kin);
+        Ok(Self { kin, guard })
+    }
+
+    fn rest_steps(&self) -> Result<gonio_shared::kinematics::Steps, Unreachable> {
+        self.kin.to_steps(&self.kin.rest_pose())
+    }
+
+    fn accepts(&self, wi: DVec3, wo: DVec3) -> Result<(), Unreachable> {
+        let d = Direction {
+            theta_i: theta_of(wi) as f32,
+            phi_i: phi_of(wi) as f32,
+            theta_o: theta_of(wo) as f32,
+            phi_o: phi_of(wo) as f32,
+        };
+        gonio_firmware::plan::check_direction(&self.kin, &self.guard, &d, &self.rest_steps()?).map(|_| ())
+    }
 }
 
 /// A complete plan.
@@ -413,13 +449,27 @@ impl Material for Reconstruction {
 /// The planner: an instrument and an estimate.
 pub struct Planner {
     kin: Kinematics<f64>,
+    firmware: FirmwareCheck,
     estimate: Estimate,
 }
 
 impl Planner {
     pub fn new(instrument: InstrumentConfig<f64>, estimate: Estimate) -> Result<Self, PlanError> {
         let kin = Kinematics::new(instrument).map_err(|e| PlanError::Invalid(format!("instrument: {e:?}")))?;
-        Ok(Self { kin, estimate })
+        let firmware = FirmwareCheck::new(&instrument)?;
+        Ok(Self {
+            kin,
+            firmware,
+            estimate,
+        })
+    }
+
+    /// A direction the planner may use: reachable in f64 (its IK candidates, for ordering and
+    /// timing) and accepted by the firmware's own test.
+    fn reachable(&self, wi: DVec3, wo: DVec3) -> Result<Candidates, Unreachable> {
+        let c = Candidates::of(&self.kin, wi, wo)?;
+        self.firmware.accepts(wi, wo)?;
+        Ok(c)
     }
 
     pub fn kinematics(&self) -> &Kinematics<f64> {
@@ -491,12 +541,12 @@ impl Planner {
                             node_dir_gen.insert(key, d);
                             continue;
                         }
-                        let entry = match Candidates::of(&self.kin, wi, wo) {
+                        let entry = match self.reachable(wi, wo) {
                             Ok(c) => {
                                 gen.push((level, k, key.1, key.2, wi, wo, c));
                                 Some(gen.len() - 1)
                             }
-                            Err(reason) => match nudge(&self.kin, wi, wo) {
+                            Err(reason) => match nudge(&|wi, wo| self.reachable(wi, wo), wi, wo) {
                                 Some((nudged, c)) => {
                                     dropped.nudged += 1;
                                     gen.push((level, k, key.1, key.2, wi, nudged, c));
@@ -742,20 +792,23 @@ impl Plan {
                 "encoded plan does not decode to the planned directions".into(),
             ));
         }
-        let cfg32 = instrument.cast::<f32>();
-        let kin = Kinematics::<f32>::new(cfg32).map_err(|e| PlanError::Invalid(format!("instrument: {e:?}")))?;
-        let mut cur = kin.rest_pose();
+        // The firmware's own test, in plan order, each direction from the previous one's steps
+        // (the controller's plan intake does the same).
+        let fw = FirmwareCheck::new(instrument)?;
+        let mut cur = fw
+            .rest_steps()
+            .map_err(|reason| PlanError::Unreachable { index: 0, reason })?;
         let mut motion = 0.0;
+        let to64 = |q: Pose<f32>| Pose::from_array(q.to_array().map(f64::from));
         for (index, d) in decoded.iter().enumerate() {
-            let p = kin
-                .inverse_angles(d.theta_i, d.phi_i, d.theta_o, d.phi_o, &cur)
+            let next = gonio_firmware::plan::check_direction(&fw.kin, &fw.guard, d, &cur)
                 .map_err(|reason| PlanError::Unreachable { index, reason })?;
-            kin.check_pose(&p)
-                .and_then(|_| kin.to_steps(&p))
-                .map_err(|reason| PlanError::Unreachable { index, reason })?;
-            let to64 = |q: Pose<f32>| Pose::from_array(q.to_array().map(f64::from));
-            motion += order::move_seconds(instrument, &to64(cur), &to64(p));
-            cur = p;
+            motion += order::move_seconds(
+                instrument,
+                &to64(fw.kin.from_steps(&cur)),
+                &to64(fw.kin.from_steps(&next)),
+            );
+            cur = next;
         }
         Ok(motion)
     }

@@ -190,8 +190,9 @@ impl ScanRecord {
             strategy,
             spacing,
             k: self.incoming,
-            max_level: self.max_level,
+            grids: crate::plan::square_grids(self.max_level),
             bound: false,
+            ..PlanConfig::default()
         })
     }
 
@@ -304,7 +305,7 @@ fn plan_with_rule(
         | LevelRule::TimeBudget { max_grid, .. } => level_of(max_grid)?,
     };
     let config = PlanConfig {
-        max_level,
+        grids: crate::plan::square_grids(max_level),
         bound: false,
         ..PlanConfig::default()
     };
@@ -605,7 +606,7 @@ fn prepare_fresh(
         strategy: config.strategy.to_string(),
         spacing: config.spacing.to_string(),
         incoming: config.k,
-        max_level: config.max_level,
+        max_level: config.grids.len(),
         level,
         directions: planned.wire.len(),
         plan_hash: format!("{:016x}", crate::journal::fnv64(&planned.bytes)),

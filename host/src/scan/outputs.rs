@@ -3,7 +3,6 @@
 
 use super::{calibration::Calibration, PhaseTimes, ScanRecord};
 use crate::brdf::frame::{phi_of, theta_of};
-use crate::brdf::grid::MeasurementGrid;
 use crate::brdf::merl::MerlTable;
 use crate::brdf::rgl::RglBsdf;
 use crate::brdf::{parse_material, Material};
@@ -68,7 +67,8 @@ pub struct OutputInputs<'a> {
     pub journal: &'a Journal,
     pub instrument: &'a InstrumentConfig<f64>,
     pub calibration: &'a Calibration,
-    pub grid: &'a MeasurementGrid,
+    /// The chosen level's reconstruction (the planner's lookup and interpolation).
+    pub grid: &'a crate::plan::Reconstruction,
     /// The ground truth's material spec (the simulated scene's sample).
     pub truth: Option<&'a str>,
 }
@@ -243,7 +243,8 @@ fn grid_json(i: &OutputInputs) -> Result<String, serde_json::Error> {
     let level = i.record.level;
     let summary = plan.level(level);
     let n = summary.map_or(0, |l| l.n);
-    let stride = (1usize << plan.config.max_level) / n.max(1);
+    let finest = plan.config.grids.last().map_or(1, |g| g.0);
+    let stride = finest / n.max(1);
     let planned: std::collections::HashSet<(usize, usize, usize)> = plan
         .directions
         .iter()
@@ -254,8 +255,8 @@ fn grid_json(i: &OutputInputs) -> Result<String, serde_json::Error> {
     for k in 0..plan.thetas.len() {
         for j in 0..n {
             for ii in 0..n {
-                let dirs = i.grid.node_directions(k, ii, j);
-                let value = i.grid.node_value(k, ii, j);
+                let dirs = i.grid.grid().node_directions(k, ii, j);
+                let value = i.grid.grid().node_value(k, ii, j);
                 nodes.push(serde_json::json!({
                     "k": k,
                     "i": ii,
@@ -302,7 +303,7 @@ fn grid_json(i: &OutputInputs) -> Result<String, serde_json::Error> {
         "strategy": i.record.strategy,
         "spacing": i.record.spacing,
         "layout": "nested",
-        "max_level": plan.config.max_level,
+        "max_level": plan.config.grids.len(),
         "level": level,
         "n": n,
         "theta_i_deg": plan.thetas.iter().map(|t| deg(*t)).collect::<Vec<_>>(),
