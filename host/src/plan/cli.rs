@@ -1,7 +1,7 @@
 //! `gonio plan` and `gonio plan-report`: argument handling and output files. Every output is
 //! written atomically and only after the plan has passed its re-simulation check.
 
-use super::report::{self, ReportConfig, Scorer};
+use super::report::{self, ReportConfig};
 use super::tradeoff;
 use super::{estimate_for, Plan, PlanConfig, PlanError, Planner, Spacing, Strategy, MAX_LEVEL};
 use crate::encoder::ModelKind;
@@ -210,21 +210,9 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
         })?;
         (l, format!("time budget {budget:.0} s"))
     } else if args.target_psnr.is_some() || args.target_flip.is_some() {
-        let mut scorer = Scorer::new(128)?;
-        let est = estimate.material();
-        let reference = scorer.render(estimate.material());
-        let values = plan.measure(est.as_ref());
-        let mut chosen = None;
-        for l in &plan.levels {
-            let img = scorer.render(Box::new(plan.reconstruct(l.level, &values)?));
-            let c = report::score(&reference, &img)?;
-            let ok_psnr = args.target_psnr.is_none_or(|t| c.psnr >= t);
-            let ok_flip = args.target_flip.is_none_or(|t| c.flip <= t);
-            if ok_psnr && ok_flip {
-                chosen = Some(l.level);
-                break;
-            }
-        }
+        let chosen = report::predictive_level(&plan, &estimate, |c| {
+            args.target_psnr.is_none_or(|t| c.psnr >= t) && args.target_flip.is_none_or(|t| c.flip <= t)
+        })?;
         match chosen {
             Some(l) => (l, "predictive (simulated on the estimate)".to_string()),
             None => {

@@ -122,6 +122,30 @@ impl Scorer {
     }
 }
 
+/// Render side of the predictive rule's simulated captures.
+pub const PREDICTIVE_SIZE: usize = 128;
+
+/// The predictive stopping rule (no ground truth needed): simulate the scan on the estimate itself
+/// (measure it at the plan's directions, reconstruct each level) and return the first level whose
+/// capture render meets `meets` against the estimate's own render; None if no level does.
+/// `gonio plan` and `gonio scan` both choose their level with it.
+pub fn predictive_level(
+    plan: &Plan,
+    estimate: &Estimate,
+    meets: impl Fn(&Comparison) -> bool,
+) -> Result<Option<usize>, PlanError> {
+    let mut scorer = Scorer::new(PREDICTIVE_SIZE)?;
+    let reference = scorer.render(estimate.material());
+    let values = plan.measure(estimate.material().as_ref());
+    for l in &plan.levels {
+        let image = scorer.render(Box::new(plan.reconstruct(l.level, &values)?));
+        if meets(&score(&reference, &image)?) {
+            return Ok(Some(l.level));
+        }
+    }
+    Ok(None)
+}
+
 /// RMSE and PSNR of the 8-bit sRGB images (exposure 1, clipped, values / 255, peak 1, whole image),
 /// as the paper computed them, and the renderer's mean LDR FLIP.
 pub fn score(reference: &Image, test: &Image) -> Result<Comparison, PlanError> {

@@ -329,30 +329,19 @@ fn plan_with_rule(
     Ok((plan, level, text))
 }
 
-/// Render side of the predictive rule's simulated captures (as `gonio plan`).
-const PREDICTIVE_SIZE: usize = 128;
-
 fn predictive(
     plan: &Plan,
     estimate: &Estimate,
     meets: impl Fn(&crate::render::metrics::Comparison) -> bool,
     target: &str,
 ) -> Result<(usize, String), ScanError> {
-    use crate::plan::report::{score, Scorer};
-    let mut scorer = Scorer::new(PREDICTIVE_SIZE)?;
-    let reference = scorer.render(estimate.material());
-    let values = plan.measure(estimate.material().as_ref());
-    for l in &plan.levels {
-        let image = scorer.render(Box::new(plan.reconstruct(l.level, &values)?));
-        if meets(&score(&reference, &image)?) {
-            return Ok((l.level, format!("predictive {target} (simulated on the estimate)")));
-        }
-    }
-    let deepest = plan.levels.last().map_or(1, |l| l.level);
-    Ok((
-        deepest,
-        format!("predictive {target}: not met by any level, deepest level used"),
-    ))
+    Ok(match crate::plan::report::predictive_level(plan, estimate, meets)? {
+        Some(level) => (level, format!("predictive {target} (simulated on the estimate)")),
+        None => (
+            plan.levels.last().map_or(1, |l| l.level),
+            format!("predictive {target}: not met by any level, deepest level used"),
+        ),
+    })
 }
 
 /// Convert every journaled reading to a BRDF value, indexed like the plan's directions.
