@@ -9,8 +9,26 @@ use anyhow::{bail, Context, Result};
 use gonio_shared::instrument::AXES;
 use std::path::PathBuf;
 
+/// How deep a plan goes: at most one of a grid, a predictive target or a time budget. Shared by
+/// `gonio plan` and `gonio scan`.
+#[derive(clap::Args, Clone, Debug)]
+#[group(id = "size", multiple = false)]
+pub struct LevelArgs {
+    /// Outgoing grid N (N x N per incoming elevation; a power of two, 2..=64). Default 16.
+    #[arg(long)]
+    pub grid: Option<usize>,
+    /// Smallest level whose render PSNR (dB), simulated on the estimate, reaches this (predictive rule).
+    #[arg(long)]
+    pub target_psnr: Option<f64>,
+    /// Smallest level whose mean FLIP, simulated on the estimate, is at most this (predictive rule).
+    #[arg(long)]
+    pub target_flip: Option<f64>,
+    /// Deepest level whose whole plan fits this time: 90, 90s, 15m, 2h, 1h30m.
+    #[arg(long, value_parser = parse_duration)]
+    pub time_budget: Option<f64>,
+}
+
 #[derive(clap::Args)]
-#[command(group = clap::ArgGroup::new("size").args(["grid", "target_psnr", "target_flip", "time_budget"]))]
 #[command(group = clap::ArgGroup::new("input").args(["photo", "material_model"]).required(true))]
 pub struct PlanArgs {
     /// A capture photo of the sample (examples/capture.toml; EXR linear, or PNG): the encoder
@@ -27,18 +45,8 @@ pub struct PlanArgs {
     /// Instrument file (default: the shipped examples/gonio.toml).
     #[arg(long)]
     pub instrument: Option<PathBuf>,
-    /// Outgoing grid N (N x N per incoming elevation; a power of two, 2..=64). Default 16.
-    #[arg(long)]
-    pub grid: Option<usize>,
-    /// Smallest level whose render PSNR (dB), simulated on the estimate, reaches this (predictive rule).
-    #[arg(long)]
-    pub target_psnr: Option<f64>,
-    /// Smallest level whose mean FLIP, simulated on the estimate, is at most this (predictive rule).
-    #[arg(long)]
-    pub target_flip: Option<f64>,
-    /// Deepest level whose whole plan fits this time: 90, 90s, 15m, 2h, 1h30m.
-    #[arg(long, value_parser = parse_duration)]
-    pub time_budget: Option<f64>,
+    #[command(flatten)]
+    pub level: LevelArgs,
     /// Deepest level the target and budget modes consider (a power of two).
     #[arg(long, default_value_t = 16)]
     pub max_grid: usize,
@@ -174,18 +182,19 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
         (None, Some(spec)) => estimate_for(spec).context("--material-model")?,
         (None, None) => bail!("give a photo (IMAGE) or --material-model"),
     };
-    let targeted = args.target_psnr.is_some() || args.target_flip.is_some() || args.time_budget.is_some();
+    let targeted =
+        args.level.target_psnr.is_some() || args.level.target_flip.is_some() || args.level.time_budget.is_some();
     let max_level = if targeted {
         level_of(args.max_grid, "--max-grid")?
     } else {
-        level_of(args.grid.unwrap_or(16), "--grid")?
+        level_of(args.level.grid.unwrap_or(16), "--grid")?
     };
-    if let Some(t) = args.target_flip {
+    if let Some(t) = args.level.target_flip {
         if !(t > 0.0 && t < 1.0) {
             bail!("--target-flip {t} must be in (0, 1)");
         }
     }
-    if let Some(t) = args.target_psnr {
+    if let Some(t) = args.level.target_psnr {
         if !t.is_finite() {
             bail!("--target-psnr must be finite");
         }
@@ -201,7 +210,7 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
     let planner = Planner::new(instrument, estimate.clone())?;
     let t0 = std::time::Instant::now();
     let plan = planner.plan(&config)?;
-    let (level, rule) = if let Some(budget) = args.time_budget {
+    let (level, rule) = if let Some(budget) = args.level.time_budget {
         let l = plan.level_within_budget(budget).with_context(|| {
             format!(
                 "--time-budget {budget:.0} s: even the first level needs {:.0} s",
@@ -209,9 +218,9 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
             )
         })?;
         (l, format!("time budget {budget:.0} s"))
-    } else if args.target_psnr.is_some() || args.target_flip.is_some() {
+    } else if args.level.target_psnr.is_some() || args.level.target_flip.is_some() {
         let chosen = report::predictive_level(&plan, &estimate, |c| {
-            args.target_psnr.is_none_or(|t| c.psnr >= t) && args.target_flip.is_none_or(|t| c.flip <= t)
+            args.level.target_psnr.is_none_or(|t| c.psnr >= t) && args.level.target_flip.is_none_or(|t| c.flip <= t)
         })?;
         match chosen {
             Some(l) => (l, "predictive (simulated on the estimate)".to_string()),

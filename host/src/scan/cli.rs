@@ -10,7 +10,6 @@ use std::io::BufRead;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
-#[command(group = clap::ArgGroup::new("size").args(["grid", "target_psnr", "target_flip", "time_budget"]))]
 pub struct ScanArgs {
     /// The capture photo of the sample (examples/capture.toml describes how to take it).
     #[arg(required_unless_present = "resume")]
@@ -21,18 +20,8 @@ pub struct ScanArgs {
     /// Scan the virtual gonio on this scan scene instead (calibrates itself unless --calibration).
     #[arg(long)]
     pub sim: Option<PathBuf>,
-    /// Outgoing grid N (N x N per incoming elevation, a power of two). Default 16 without a rule.
-    #[arg(long)]
-    pub grid: Option<usize>,
-    /// Smallest level whose render PSNR (dB), simulated on the estimate, reaches this.
-    #[arg(long)]
-    pub target_psnr: Option<f64>,
-    /// Smallest level whose mean FLIP, simulated on the estimate, is at most this.
-    #[arg(long)]
-    pub target_flip: Option<f64>,
-    /// Deepest level whose whole plan fits this time: 90s, 15m, 2h, 1h30m.
-    #[arg(long, value_parser = crate::plan::cli::parse_duration)]
-    pub time_budget: Option<f64>,
+    #[command(flatten)]
+    pub level: crate::plan::cli::LevelArgs,
     /// Deepest grid the target and budget rules consider.
     #[arg(long, default_value_t = 16)]
     pub max_grid: usize,
@@ -91,7 +80,7 @@ pub fn run_scan(a: ScanArgs) -> Result<()> {
             },
         ),
         (None, Some(out), Some(image)) => {
-            let rule = if let Some(db) = a.target_psnr {
+            let rule = if let Some(db) = a.level.target_psnr {
                 if !db.is_finite() {
                     bail!("--target-psnr must be finite");
                 }
@@ -99,7 +88,7 @@ pub fn run_scan(a: ScanArgs) -> Result<()> {
                     db,
                     max_grid: a.max_grid,
                 }
-            } else if let Some(flip) = a.target_flip {
+            } else if let Some(flip) = a.level.target_flip {
                 if !(flip > 0.0 && flip < 1.0) {
                     bail!("--target-flip {flip} must be in (0, 1)");
                 }
@@ -107,13 +96,13 @@ pub fn run_scan(a: ScanArgs) -> Result<()> {
                     flip,
                     max_grid: a.max_grid,
                 }
-            } else if let Some(seconds) = a.time_budget {
+            } else if let Some(seconds) = a.level.time_budget {
                 LevelRule::TimeBudget {
                     seconds,
                     max_grid: a.max_grid,
                 }
             } else {
-                LevelRule::Grid(a.grid.unwrap_or(16))
+                LevelRule::Grid(a.level.grid.unwrap_or(16))
             };
             let fresh = FreshScan {
                 image: image.clone(),
