@@ -8,7 +8,6 @@ use gonio::sim::{model::SimModel, SimHandle};
 use std::path::Path;
 use std::process::{Child, Stdio};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
 
 const N: usize = 60;
 
@@ -34,17 +33,6 @@ fn reference(fx: &Fixture) -> Vec<String> {
 }
 
 /// Wait (a failure guard, not a measurement) until the journal holds at least `n` records.
-fn wait_for_records(out: &Path, n: usize, child: &mut Child) {
-    let start = Instant::now();
-    while journal_records(out).len() < n {
-        assert!(start.elapsed() < Duration::from_secs(60), "scan made no progress");
-        if let Ok(Some(status)) = child.try_wait() {
-            panic!("gonio measure ended early: {status}");
-        }
-        std::thread::sleep(Duration::from_millis(5));
-    }
-}
-
 fn sim_on_link(fx: &Fixture, speedup: f64) -> SimHandle {
     let model = SimModel::load(&fx.scene, fx.instrument_config(), 1).unwrap();
     SimHandle::spawn(Arc::new(model), speedup, Some(fx.path("port"))).unwrap()
@@ -154,17 +142,6 @@ fn a_limit_fault_mid_scan_is_reported_with_the_pose_and_the_journal_keeps_what_c
     assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
     assert_eq!(journal_indices(&out), (0..7).collect::<Vec<u32>>());
     assert!(!out.join("measurements.csv").exists());
-}
-
-/// One line on stderr, a failure exit, and the output folder never created.
-fn assert_clean_failure(args: &[&str], out: &Path, expect: &str) {
-    let o = run(args);
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success(), "{args:?} succeeded");
-    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
-    assert!(stderr.contains(expect), "expected {expect:?} in {stderr}");
-    assert!(!stderr.contains("panicked"), "{stderr}");
-    assert!(!out.exists(), "{} was created", out.display());
 }
 
 #[test]

@@ -14,7 +14,6 @@ use gonio_shared::kinematics::Kinematics;
 use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
 
 const SAMPLE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../examples/sample.png");
 const SCENE_FILE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../examples/scene.toml");
@@ -129,17 +128,6 @@ fn scan_against_the_sim_writes_every_output_and_the_bsdf_reads_back() {
     assert_eq!(grid["nodes"].as_array().unwrap().len(), 8 * 4 * 4);
 }
 
-fn wait_for_records(out: &Path, n: usize, child: &mut std::process::Child) {
-    let start = Instant::now();
-    while journal_records(out).len() < n {
-        assert!(start.elapsed() < Duration::from_secs(120), "scan made no progress");
-        if let Ok(Some(status)) = child.try_wait() {
-            panic!("gonio scan ended early: {status}");
-        }
-        std::thread::sleep(Duration::from_millis(5));
-    }
-}
-
 fn listing(dir: &Path) -> Vec<(String, u64)> {
     let mut v: Vec<(String, u64)> = std::fs::read_dir(dir)
         .unwrap()
@@ -242,17 +230,6 @@ fn a_limit_fault_mid_scan_stops_it_with_the_pose_and_keeps_the_journal() {
     for f in ["grid.json", "measured.binary", "measured.bsdf", "report.md"] {
         assert!(!out.join(f).exists(), "{f} written after a fault");
     }
-}
-
-/// One line on stderr, a failure exit, and the output folder never created.
-fn assert_clean_failure(a: &[&str], out: &Path, expect: &str) {
-    let o = run(a);
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success(), "{a:?} succeeded");
-    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
-    assert!(stderr.contains(expect), "expected {expect:?} in {stderr}");
-    assert!(!stderr.contains("panicked"), "{stderr}");
-    assert!(!out.exists(), "{} was created", out.display());
 }
 
 #[test]

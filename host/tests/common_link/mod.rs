@@ -4,7 +4,8 @@
 
 use gonio_shared::msg::Direction;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::{Child, Command, Output};
+use std::time::{Duration, Instant};
 
 /// The shipped instrument with ~100x fewer steps per degree and short settle/exposure.
 pub fn coarse_instrument_toml() -> String {
@@ -129,4 +130,28 @@ pub fn journal_indices(dir: &Path) -> Vec<u32> {
         .iter()
         .map(|l| l.split(' ').nth(1).unwrap().parse().unwrap())
         .collect()
+}
+
+/// Wait until the journal in `out` holds `n` readings; fails if the child exits first or nothing
+/// happens for two minutes.
+pub fn wait_for_records(out: &Path, n: usize, child: &mut Child) {
+    let start = Instant::now();
+    while journal_records(out).len() < n {
+        assert!(start.elapsed() < Duration::from_secs(120), "the scan made no progress");
+        if let Ok(Some(status)) = child.try_wait() {
+            panic!("gonio ended early: {status}");
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// One line on stderr, a failure exit, and the output folder never created.
+pub fn assert_clean_failure(args: &[&str], out: &Path, expect: &str) {
+    let o = run(args);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{args:?} succeeded");
+    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+    assert!(stderr.contains(expect), "expected {expect:?} in {stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(!out.exists(), "{} was created", out.display());
 }
