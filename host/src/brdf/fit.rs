@@ -52,6 +52,8 @@ pub fn fit_directions() -> Vec<(DVec3, DVec3)> {
 struct Problem {
     pairs: Vec<(DVec3, DVec3)>,
     cos_o: Vec<f64>,
+    /// Each pair's weight in the loss (1 for the documented direction set).
+    weight: Vec<f64>,
     /// log(1 + f cos) of the target, per channel.
     target: [Vec<f64>; 3],
     model: FitModel,
@@ -73,7 +75,7 @@ impl Problem {
             let mut s = 0.0;
             for i in 0..spec.len() {
                 let f = kd * FRAC_1_PI + ks * spec[i];
-                s += ((f * self.cos_o[i]).ln_1p() - t[i]).powi(2);
+                s += self.weight[i] * ((f * self.cos_o[i]).ln_1p() - t[i]).powi(2);
             }
             s
         };
@@ -81,12 +83,12 @@ impl Problem {
         let (mut a11, mut a12, mut a22, mut r1, mut r2) = (0.0, 0.0, 0.0, 0.0, 0.0);
         for i in 0..spec.len() {
             let (x1, x2) = (FRAC_1_PI * self.cos_o[i], spec[i] * self.cos_o[i]);
-            let y = t[i].exp_m1();
-            a11 += x1 * x1;
-            a12 += x1 * x2;
-            a22 += x2 * x2;
-            r1 += x1 * y;
-            r2 += x2 * y;
+            let (y, w) = (t[i].exp_m1(), self.weight[i]);
+            a11 += w * x1 * x1;
+            a12 += w * x1 * x2;
+            a22 += w * x2 * x2;
+            r1 += w * x1 * y;
+            r2 += w * x2 * y;
         }
         let (mut kd, mut ks) = solve2(a11, a12, a22, r1, r2);
         let mut best = residuals(kd, ks);
@@ -97,11 +99,12 @@ impl Problem {
                 let denom = 1.0 + f * self.cos_o[i];
                 let r = denom.ln() - t[i];
                 let (j1, j2) = (FRAC_1_PI * self.cos_o[i] / denom, spec[i] * self.cos_o[i] / denom);
-                a11 += j1 * j1;
-                a12 += j1 * j2;
-                a22 += j2 * j2;
-                g1 += j1 * r;
-                g2 += j2 * r;
+                let w = self.weight[i];
+                a11 += w * j1 * j1;
+                a12 += w * j1 * j2;
+                a22 += w * j2 * j2;
+                g1 += w * j1 * r;
+                g2 += w * j2 * r;
             }
             let (d1, d2) = solve2(a11, a12, a22, g1, g2);
             // Step halving keeps the loss monotone; the projection keeps the colours physical.
@@ -154,8 +157,33 @@ fn solve2(a11: f64, a12: f64, a22: f64, r1: f64, r2: f64) -> (f64, f64) {
 /// Fit `model` to `material` over the documented direction set.
 pub fn fit(material: &dyn Material, model: FitModel) -> FitResult {
     let pairs = fit_directions();
-    let cos_o: Vec<f64> = pairs.iter().map(|(_, wo)| wo.z).collect();
     let values: Vec<DVec3> = pairs.iter().map(|&(wi, wo)| material.eval(wi, wo)).collect();
+    let weights = vec![1.0; pairs.len()];
+    fit_samples(pairs, &values, &weights, model)
+}
+
+/// Fit `model` to sampled values `values[i]` = f(pairs[i]) (e.g. a scan's measurements), with the
+/// loss of `fit` and pair i weighted by `weights[i]` (e.g. the solid angle a sample stands for, so
+/// samples crowded into a peak do not outvote the rest of the hemisphere). Directions below the
+/// horizon carry cos_o = 0 and drop out of the loss (both logs are 0). Panics if the lengths differ.
+pub fn fit_samples(pairs: Vec<(DVec3, DVec3)>, values: &[DVec3], weights: &[f64], model: FitModel) -> FitResult {
+    assert_eq!(pairs.len(), values.len(), "one value per direction pair");
+    assert_eq!(pairs.len(), weights.len(), "one weight per direction pair");
+    // Guard: a negative or non-finite weight counts as 0.
+    let weight: Vec<f64> = weights
+        .iter()
+        .map(|&w| if w.is_finite() { w.max(0.0) } else { 0.0 })
+        .collect();
+    // Guard: a direction below the horizon (or a non-finite one) has weight cos = 0.
+    let cos_o: Vec<f64> = pairs
+        .iter()
+        .map(|(_, wo)| if wo.z > 0.0 && wo.z.is_finite() { wo.z } else { 0.0 })
+        .collect();
+    // Guard: a non-finite reading (a fault upstream) counts as 0, as a negative one does.
+    let values: Vec<DVec3> = values
+        .iter()
+        .map(|v| if v.is_finite() { *v } else { DVec3::ZERO })
+        .collect();
     let target = [0, 1, 2].map(|c| {
         values
             .iter()
@@ -166,6 +194,7 @@ pub fn fit(material: &dyn Material, model: FitModel) -> FitResult {
     let problem = Problem {
         pairs,
         cos_o,
+        weight,
         target,
         model,
     };
@@ -214,7 +243,7 @@ pub fn fit(material: &dyn Material, model: FitModel) -> FitResult {
     };
     FitResult {
         model,
-        rms_log_error: (loss / (3 * n) as f64).sqrt(),
+        rms_log_error: (loss / (3 * n.max(1)) as f64).sqrt(),
         pairs: n,
     }
 }
@@ -253,5 +282,50 @@ mod tests {
             "{w:?}"
         );
         assert_eq!(r.pairs, 9 * 18 * 13);
+    }
+
+    /// `fit_samples` reads its weights: outliers at weight 0 leave the fit exact, the same outliers
+    /// at weight 1 pull it away. Below-horizon pairs and non-finite readings stay harmless.
+    #[test]
+    fn sample_weights_decide_what_the_fit_listens_to() {
+        let ggx = Ggx {
+            alpha: 0.2,
+            diffuse: DVec3::new(0.2, 0.3, 0.4),
+            specular: DVec3::splat(0.8),
+        };
+        let mut pairs = fit_directions();
+        pairs.retain(|(wi, _)| wi.z > 0.5);
+        let mut values: Vec<DVec3> = pairs.iter().map(|&(wi, wo)| ggx.eval(wi, wo)).collect();
+        let mut weights = vec![1.0; pairs.len()];
+        // Every 7th reading ten times too bright, at weight 0.
+        for i in (0..values.len()).step_by(7) {
+            values[i] *= 10.0;
+            weights[i] = 0.0;
+        }
+        // A below-horizon pair and a NaN reading (at weight 0) and a NaN weight.
+        pairs.push((from_spherical(0.3, 0.0), DVec3::new(0.0, 0.6, -0.8)));
+        values.push(DVec3::splat(5.0));
+        weights.push(1.0);
+        pairs.push((from_spherical(0.3, 0.0), from_spherical(0.4, 1.0)));
+        values.push(DVec3::splat(f64::NAN));
+        weights.push(0.0);
+        weights[1] = f64::NAN;
+        let r = fit_samples(pairs.clone(), &values, &weights, FitModel::Ggx);
+        let Analytic::Ggx(g) = &r.model else {
+            panic!("not ggx: {:?}", r.model)
+        };
+        assert!((g.alpha / 0.2 - 1.0).abs() < 1e-3, "{g:?}");
+        assert!((g.diffuse - ggx.diffuse).abs().max_element() < 1e-3, "{g:?}");
+        assert!(r.rms_log_error.is_finite());
+        // The same outliers heard: the fit moves.
+        let heard: Vec<f64> = weights.iter().map(|w| if *w == 0.0 { 1.0 } else { *w }).collect();
+        let r = fit_samples(pairs, &values, &heard, FitModel::Ggx);
+        let Analytic::Ggx(h) = &r.model else {
+            panic!("not ggx: {:?}", r.model)
+        };
+        assert!(
+            (h.alpha / 0.2 - 1.0).abs() > 0.05 || (h.diffuse - ggx.diffuse).abs().max_element() > 0.05,
+            "{h:?}"
+        );
     }
 }

@@ -14,6 +14,7 @@ pub mod analytic;
 pub mod cli;
 mod error;
 pub mod fit;
+pub mod fit_lobes;
 pub mod frame;
 pub mod grid;
 pub mod half_diff;

@@ -109,6 +109,11 @@ pub struct TradeoffArgs {
     /// What the reconstruction interpolates between nodes.
     #[arg(long, value_enum, default_value_t = super::Interp::Log)]
     pub interp: super::Interp,
+    /// What the reconstruction interpolates on top of: Lambert plus two GGX lobes fitted to each
+    /// level's own measurements (two-lobes), one lobe (fit), or nothing (none). The same for every
+    /// strategy.
+    #[arg(long, value_enum, default_value_t = super::Prior::TwoLobes)]
+    pub prior: super::Prior,
     /// Point-light render side in pixels (default 128; table1: 256).
     #[arg(long)]
     pub size: Option<usize>,
@@ -204,7 +209,6 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
         spacing: args.spacing,
         k: args.incoming,
         grids: super::square_grids(max_level),
-        bound: true,
         ..PlanConfig::default()
     };
     let planner = Planner::new(instrument, estimate.clone())?;
@@ -365,6 +369,7 @@ pub fn run_tradeoff(args: TradeoffArgs) -> Result<()> {
     cfg.k = args.incoming;
     cfg.lookup = args.lookup;
     cfg.interp = args.interp;
+    cfg.prior = args.prior;
     if let Some(size) = args.size {
         cfg.size = size;
     }

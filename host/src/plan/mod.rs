@@ -35,7 +35,7 @@ use crate::brdf::analytic::Ggx;
 use crate::brdf::frame::{from_spherical, phi_of, theta_of};
 use crate::brdf::grid::{incident_thetas, MeasurementGrid, NodeLayout, THETA_I_MAX};
 use crate::brdf::spec::Analytic;
-use crate::brdf::warp::{GgxVndf, MixtureWarp, SliceWarp, Warp, WarpKind};
+use crate::brdf::warp::{GgxVndf, MixtureWarp, SliceWarp, UniformAngles, Warp, WarpKind};
 use crate::brdf::Material;
 use glam::{DVec2, DVec3};
 use gonio_shared::instrument::InstrumentConfig;
@@ -185,6 +185,60 @@ impl fmt::Display for Interp {
     }
 }
 
+/// What the reconstruction interpolates on top of.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Prior {
+    /// Nothing: the grid interpolates the measured values themselves.
+    None,
+    /// A GGX lobe (plus Lambert) fitted to the level's own measurements (`brdf::fit::fit_samples`,
+    /// the same log(1 + f cos) loss as `gonio brdf fit`; no ground truth involved). The grid
+    /// interpolates the residual of each measurement against the lobe, in the `Interp` space, and
+    /// the lobe, evaluated at the query's own (wi, wo), supplies the shape between nodes and
+    /// between incoming slices: a peak that moves with wi is found where it is, not averaged from
+    /// the two slices' mirror directions, and a coarse level's few nodes correct the lobe's level
+    /// instead of having to describe its shape.
+    Fit,
+    /// As `Fit` with Lambert plus two GGX lobes (`brdf::fit_lobes`): a sharp peak and a broad halo,
+    /// the shape of most paints and plastics.
+    TwoLobes,
+}
+
+impl fmt::Display for Prior {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Prior::None => "none",
+            Prior::Fit => "fit",
+            Prior::TwoLobes => "two-lobes",
+        })
+    }
+}
+
+/// The lobe a reconstruction fitted to its measurements (`Prior`).
+#[derive(Clone, Debug)]
+pub enum FittedPrior {
+    Lobe(Analytic),
+    TwoLobes(crate::brdf::fit_lobes::TwoLobes),
+}
+
+impl FittedPrior {
+    fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
+        match self {
+            FittedPrior::Lobe(Analytic::Lambert(m)) => m.eval(wi, wo),
+            FittedPrior::Lobe(Analytic::Ward(m)) => m.eval(wi, wo),
+            FittedPrior::Lobe(Analytic::Ggx(m)) => m.eval(wi, wo),
+            FittedPrior::TwoLobes(m) => m.eval(wi, wo),
+        }
+    }
+
+    /// One line for reports (a material spec for the one-lobe prior).
+    pub fn describe(&self) -> String {
+        match self {
+            FittedPrior::Lobe(m) => m.to_spec(),
+            FittedPrior::TwoLobes(m) => m.describe(),
+        }
+    }
+}
+
 /// What to plan.
 #[derive(Clone, Debug)]
 pub struct PlanConfig {
@@ -194,13 +248,12 @@ pub struct PlanConfig {
     pub k: usize,
     /// The levels' outgoing grids (N, M), coarsest first; each level's N and M divide the next's.
     pub grids: Vec<(usize, usize)>,
-    /// Compute the motion lower bound (O(n^2) per level; a scan does not need it). Without it the
-    /// levels' `lower_bound_motion_seconds` are NaN.
-    pub bound: bool,
     /// The reconstruction's u lookup.
     pub lookup: Lookup,
     /// The reconstruction's interpolated quantity.
     pub interp: Interp,
+    /// What the reconstruction interpolates on top of.
+    pub prior: Prior,
 }
 
 impl Default for PlanConfig {
@@ -211,9 +264,9 @@ impl Default for PlanConfig {
             spacing: Spacing::Angle,
             k: crate::brdf::grid::DEFAULT_K,
             grids: square_grids(4),
-            bound: true,
             lookup: Lookup::Query,
             interp: Interp::Log,
+            prior: Prior::TwoLobes,
         }
     }
 }
@@ -419,11 +472,43 @@ pub struct Reconstruction {
     lookup: Lookup,
     interp: Interp,
     specular_alpha: f64,
+    /// The fitted lobe under the grid (`Prior::Fit`, `Prior::TwoLobes`); the grid then holds residuals.
+    prior: Option<FittedPrior>,
 }
 
 impl Reconstruction {
     pub fn grid(&self) -> &MeasurementGrid {
         &self.grid
+    }
+
+    /// The reconstruction's value (BRDF, 1/sr) at node (k, i, j): the grid itself holds values in
+    /// the interpolation space (log(1 + f), less the prior's), so read it back through `eval`.
+    /// None where the node has no direction (below the horizon) or no value.
+    pub fn node_value(&self, k: usize, i: usize, j: usize) -> Option<DVec3> {
+        self.grid.node_value(k, i, j)?;
+        let (wi, wo) = self.grid.node_directions(k, i, j)?;
+        Some(self.eval(wi, wo))
+    }
+
+    /// The lobe fitted to the measurements, if the reconstruction uses one.
+    pub fn prior(&self) -> Option<&FittedPrior> {
+        self.prior.as_ref()
+    }
+}
+
+impl Interp {
+    /// A value in the interpolated space. Guard: a negative reading (noise) has no log; clamp it at 0.
+    fn forward(self, v: DVec3) -> DVec3 {
+        match self {
+            Interp::Linear => v,
+            Interp::Log => v.max(DVec3::ZERO).map(f64::ln_1p),
+        }
+    }
+    fn inverse(self, v: DVec3) -> DVec3 {
+        match self {
+            Interp::Linear => v,
+            Interp::Log => v.map(f64::exp_m1),
+        }
     }
 }
 
@@ -439,10 +524,13 @@ impl Material for Reconstruction {
                     other => other.invert(wo),
                 }),
         };
-        match self.interp {
-            Interp::Linear => v,
-            Interp::Log => v.map(f64::exp_m1),
-        }
+        let base = match &self.prior {
+            Some(p) => self.interp.forward(p.eval(wi, wo)),
+            None => DVec3::ZERO,
+        };
+        // Guard: a residual interpolated from a node where the prior overshoots can take the sum
+        // below 0 (f < 0) where the prior is small; a BRDF is never negative.
+        self.interp.inverse(base + v).max(DVec3::ZERO)
     }
 }
 
@@ -574,16 +662,16 @@ impl Planner {
 
         // Order within each level; time both orders by replaying the IK.
         let rest = self.kin.rest_pose();
-        let rest_c = Candidates(vec![rest]);
         let mut order: Vec<usize> = Vec::with_capacity(gen.len());
         let mut levels = Vec::new();
         let (mut cur, mut cur_raster) = (rest, rest);
-        let mut cur_c = rest_c.clone();
+        let mut cur_c = Candidates(vec![rest]);
         let (mut cum, mut cum_raster) = (0.0, 0.0);
         let mut directions: Vec<PlannedDirection> = Vec::with_capacity(gen.len());
         for &(level, n, m, a, b) in &level_ranges {
             let items: Vec<Candidates> = gen[a..b].iter().map(|g| g.6.clone()).collect();
-            let perm = order::optimise(&cfg, &cur_c, &items);
+            let ordered = order::optimise(&cfg, &cur_c, &items);
+            let perm = ordered.perm;
             let pairs: Vec<(DVec3, DVec3)> = perm.iter().map(|&p| (gen[a + p].4, gen[a + p].5)).collect();
             let (poses, moves) =
                 order::simulate(&self.kin, cur, &pairs).map_err(|(i, reason)| PlanError::Unreachable {
@@ -593,25 +681,7 @@ impl Planner {
             let raster_pairs: Vec<(DVec3, DVec3)> = gen[a..b].iter().map(|g| (g.4, g.5)).collect();
             let (rposes, rmoves) = order::simulate(&self.kin, cur_raster, &raster_pairs)
                 .map_err(|(i, reason)| PlanError::Unreachable { index: a + i, reason })?;
-            // Bound: entry edge from any earlier pose (or the rest pose) + MST of the new directions.
-            let earlier: Vec<&Candidates> = std::iter::once(&rest_c).chain(gen[..a].iter().map(|g| &g.6)).collect();
-            let entry = if !config.bound {
-                f64::NAN
-            } else if items.is_empty() {
-                0.0
-            } else {
-                earlier
-                    .iter()
-                    .flat_map(|e| items.iter().map(move |it| (e, it)))
-                    .map(|(e, it)| order::metric(&cfg, e, it))
-                    .fold(f64::INFINITY, f64::min)
-            };
-            let refs: Vec<&Candidates> = items.iter().collect();
-            let bound = if config.bound {
-                entry + order::mst_seconds(&cfg, &refs)
-            } else {
-                f64::NAN
-            };
+            let bound = ordered.bound;
             let motion: f64 = moves.iter().sum();
             let raster: f64 = rmoves.iter().sum();
             cum += motion + settle_exposure * items.len() as f64;
@@ -727,6 +797,11 @@ impl Plan {
     /// Reconstruct level `level` from the measured values (indexed like `directions`; only the
     /// prefix up to the level is read). Unmeasured nodes take their nearest measured neighbour's value.
     pub fn reconstruct(&self, level: usize, values: &[DVec3]) -> Result<Reconstruction, PlanError> {
+        self.reconstruct_with(level, values, self.config.prior)
+    }
+
+    /// `reconstruct` with another prior than the plan's.
+    pub fn reconstruct_with(&self, level: usize, values: &[DVec3], prior: Prior) -> Result<Reconstruction, PlanError> {
         let summary = self
             .level(level)
             .ok_or_else(|| PlanError::Invalid(format!("no level {level}")))?;
@@ -751,6 +826,40 @@ impl Plan {
             vec![DVec3::ZERO; cells],
             vec![false; cells],
         )?;
+        let prior = match prior {
+            Prior::None => None,
+            Prior::Fit | Prior::TwoLobes => {
+                let measured = &self.directions[..limit];
+                let pairs: Vec<(DVec3, DVec3)> = measured.iter().map(|d| (d.wi, d.wo)).collect();
+                // Each sample stands for the equal-angle measure its warp gives it (p_angles / p_warp):
+                // the loss then weighs the hemisphere as `gonio brdf fit` and brdf_log_err do, however
+                // densely the plan crowds a peak. Guard: a zero or non-finite density gets weight 0.
+                let weights: Vec<f64> = measured
+                    .iter()
+                    .map(|d| {
+                        let p = self.slices[d.k].pdf(d.wo);
+                        let w = UniformAngles.pdf(d.wo) / p;
+                        if p > 0.0 && w.is_finite() {
+                            w
+                        } else {
+                            0.0
+                        }
+                    })
+                    .collect();
+                let values = &values[..limit];
+                Some(if prior == Prior::Fit {
+                    let fit = crate::brdf::fit::fit_samples(pairs, values, &weights, crate::brdf::fit::FitModel::Ggx);
+                    FittedPrior::Lobe(fit.model)
+                } else {
+                    // The sharp lobe no sharper than half the estimate the nodes were placed for.
+                    let min_alpha = 0.5 * self.specular_alpha;
+                    FittedPrior::TwoLobes(
+                        crate::brdf::fit_lobes::fit_two_lobes(&pairs, values, &weights, min_alpha).model,
+                    )
+                })
+            }
+        };
+        let interp = self.config.interp;
         for k in 0..k_count {
             for j in 0..m {
                 for i in 0..n {
@@ -758,10 +867,15 @@ impl Plan {
                         .node_dir
                         .get(&(k, i * stride_i, j * stride_j))
                         .filter(|&&d| d < limit)
-                        .map(|&d| match self.config.interp {
-                            Interp::Linear => values[d],
-                            // Guard: a negative reading (noise) has no log; clamp it at 0.
-                            Interp::Log => values[d].max(DVec3::ZERO).map(f64::ln_1p),
+                        .map(|&d| {
+                            let base = match &prior {
+                                Some(p) => {
+                                    let dir = &self.directions[d];
+                                    interp.forward(p.eval(dir.wi, dir.wo))
+                                }
+                                None => DVec3::ZERO,
+                            };
+                            interp.forward(values[d]) - base
                         });
                     grid.set_node(k, i, j, v);
                 }
@@ -774,6 +888,7 @@ impl Plan {
             lookup: self.config.lookup,
             interp: self.config.interp,
             specular_alpha: self.specular_alpha,
+            prior,
         })
     }
 

@@ -191,7 +191,6 @@ impl ScanRecord {
             spacing,
             k: self.incoming,
             grids: crate::plan::square_grids(self.max_level),
-            bound: false,
             ..PlanConfig::default()
         })
     }
@@ -306,7 +305,6 @@ fn plan_with_rule(
     };
     let config = PlanConfig {
         grids: crate::plan::square_grids(max_level),
-        bound: false,
         ..PlanConfig::default()
     };
     let plan = Planner::new(*instrument, estimate.clone())?.plan(&config)?;

@@ -256,7 +256,7 @@ fn grid_json(i: &OutputInputs) -> Result<String, serde_json::Error> {
         for j in 0..n {
             for ii in 0..n {
                 let dirs = i.grid.grid().node_directions(k, ii, j);
-                let value = i.grid.grid().node_value(k, ii, j);
+                let value = i.grid.node_value(k, ii, j);
                 nodes.push(serde_json::json!({
                     "k": k,
                     "i": ii,

@@ -1,0 +1,412 @@
+//! Fit a Lambert term plus two GGX lobes to sampled values: the shape of most MERL paints and
+//! plastics (a sharp clear-coat peak over a broad glossy lobe), which one GGX lobe cannot hold:
+//! fitted to samples of the peak it loses the halo, fitted to the halo it loses the peak.
+//!
+//! Loss: as `fit::fit_samples`, the weighted least squares on log(1 + f cos theta_o). For a pair
+//! of roughnesses (alpha_sharp < alpha_broad) the three non-negative colours per channel (kd,
+//! ks_sharp, ks_broad) enter linearly inside the log: projected Gauss-Newton, each step an exact three-variable
+//! non-negative least squares (every active set tried). The roughness pair is searched on a log
+//! grid over [2e-3, 1] with the broad lobe at least `MIN_RATIO` times rougher, so the two lobes
+//! cannot both describe one feature.
+
+use super::analytic::ggx_specular;
+use super::Material;
+use glam::DVec3;
+use std::f64::consts::FRAC_1_PI;
+
+const ALPHA_MIN: f64 = 2e-3;
+const ALPHA_MAX: f64 = 1.0;
+/// Grid steps over [ALPHA_MIN, ALPHA_MAX] (log spaced) for each lobe's roughness.
+const ALPHA_STEPS: usize = 20;
+/// The broad lobe is at least this many times rougher than the sharp one.
+const MIN_RATIO: f64 = 2.5;
+/// Gauss-Newton iterations per roughness pair (the linear start is usually close).
+const GN_ITERATIONS: usize = 12;
+
+/// Lambert plus two GGX lobes (Fresnel 1, Smith masking; `analytic::ggx_specular`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TwoLobes {
+    pub diffuse: DVec3,
+    pub sharp_alpha: f64,
+    pub sharp: DVec3,
+    pub broad_alpha: f64,
+    pub broad: DVec3,
+}
+
+impl TwoLobes {
+    /// A readable one-line description (not a material spec: no parser reads it).
+    pub fn describe(&self) -> String {
+        let c = |v: DVec3| format!("{:.3}/{:.3}/{:.3}", v.x, v.y, v.z);
+        format!(
+            "lambert {} + ggx(alpha {:.4}) {} + ggx(alpha {:.4}) {}",
+            c(self.diffuse),
+            self.sharp_alpha,
+            c(self.sharp),
+            self.broad_alpha,
+            c(self.broad)
+        )
+    }
+}
+
+impl Material for TwoLobes {
+    fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
+        if wi.z <= 0.0 || wo.z <= 0.0 {
+            return DVec3::ZERO;
+        }
+        self.diffuse * FRAC_1_PI
+            + self.sharp * ggx_specular(wi, wo, self.sharp_alpha)
+            + self.broad * ggx_specular(wi, wo, self.broad_alpha)
+    }
+}
+
+/// The fitted lobes and the weighted RMS of the log residuals.
+#[derive(Clone, Debug)]
+pub struct TwoLobeFit {
+    pub model: TwoLobes,
+    pub rms_log_error: f64,
+}
+
+/// Fit `TwoLobes` to `values[i]` = f(pairs[i]) with weights (see `fit::fit_samples`: below-horizon
+/// pairs, negative or non-finite weights and non-finite values drop out), the sharp lobe no sharper
+/// than `min_alpha`. Why a floor: between its samples a lobe far sharper than their spacing is
+/// unconstrained, and a razor-thin lobe that fits a few samples' noise puts a huge spike at every
+/// mirror direction the samples missed. The caller knows how sharp a lobe its data can resolve
+/// (a plan: the estimate it placed its nodes for). Panics if the lengths differ.
+pub fn fit_two_lobes(pairs: &[(DVec3, DVec3)], values: &[DVec3], weights: &[f64], min_alpha: f64) -> TwoLobeFit {
+    assert_eq!(pairs.len(), values.len(), "one value per direction pair");
+    assert_eq!(pairs.len(), weights.len(), "one weight per direction pair");
+    // Keep only the samples that carry weight (guards as in fit::fit_samples).
+    let mut cos_o = Vec::new();
+    let mut w = Vec::new();
+    let mut kept = Vec::new();
+    let mut target: [Vec<f64>; 3] = [Vec::new(), Vec::new(), Vec::new()];
+    for (i, &(wi, wo)) in pairs.iter().enumerate() {
+        let wt = if weights[i].is_finite() {
+            weights[i].max(0.0)
+        } else {
+            0.0
+        };
+        let v = values[i];
+        if !(wo.z > 0.0 && wi.z > 0.0) || wt == 0.0 || !v.is_finite() {
+            continue;
+        }
+        cos_o.push(wo.z);
+        w.push(wt);
+        kept.push((wi, wo));
+        for c in 0..3 {
+            target[c].push((v[c].max(0.0) * wo.z).ln_1p());
+        }
+    }
+    let alphas: Vec<f64> = (0..=ALPHA_STEPS)
+        .map(|i| (ALPHA_MIN.ln() + (ALPHA_MAX / ALPHA_MIN).ln() * i as f64 / ALPHA_STEPS as f64).exp())
+        .collect();
+    // The specular factor of every candidate roughness at every kept sample, times cos_o.
+    let basis: Vec<Vec<f64>> = alphas
+        .iter()
+        .map(|&a| {
+            kept.iter()
+                .zip(&cos_o)
+                .map(|(&(wi, wo), c)| ggx_specular(wi, wo, a) * c)
+                .collect()
+        })
+        .collect();
+    let diffuse: Vec<f64> = cos_o.iter().map(|c| c * FRAC_1_PI).collect();
+    let mut best: Option<(f64, usize, usize, [[f64; 3]; 3])> = None;
+    // Guard: a non-finite floor is no floor; one above the grid leaves only the roughest pair.
+    let min_alpha = if min_alpha.is_finite() {
+        min_alpha.min(ALPHA_MAX / MIN_RATIO)
+    } else {
+        0.0
+    };
+    for s in 0..alphas.len() {
+        // The grid point at or just below the floor stays, so the floor is never skipped over.
+        if alphas.get(s + 1).is_some_and(|&next| next <= min_alpha) {
+            continue;
+        }
+        for b in s + 1..alphas.len() {
+            if alphas[b] < MIN_RATIO * alphas[s] {
+                continue;
+            }
+            let cols = [&diffuse[..], &basis[s][..], &basis[b][..]];
+            let mut coeffs = [[0.0; 3]; 3];
+            let mut loss = 0.0;
+            for c in 0..3 {
+                let (x, l) = solve_channel(&cols, &target[c], &w);
+                coeffs[c] = x;
+                loss += l;
+            }
+            if best.is_none_or(|(l, ..)| loss < l) {
+                best = Some((loss, s, b, coeffs));
+            }
+        }
+    }
+    let total_w: f64 = w.iter().sum::<f64>().max(f64::MIN_POSITIVE);
+    match best {
+        Some((loss, s, b, x)) => TwoLobeFit {
+            model: TwoLobes {
+                diffuse: DVec3::new(x[0][0], x[1][0], x[2][0]),
+                sharp_alpha: alphas[s],
+                sharp: DVec3::new(x[0][1], x[1][1], x[2][1]),
+                broad_alpha: alphas[b],
+                broad: DVec3::new(x[0][2], x[1][2], x[2][2]),
+            },
+            rms_log_error: (loss / (3.0 * total_w)).sqrt(),
+        },
+        // No usable sample: a black material.
+        None => TwoLobeFit {
+            model: TwoLobes {
+                diffuse: DVec3::ZERO,
+                sharp_alpha: ALPHA_MIN,
+                sharp: DVec3::ZERO,
+                broad_alpha: ALPHA_MAX,
+                broad: DVec3::ZERO,
+            },
+            rms_log_error: 0.0,
+        },
+    }
+}
+
+/// Weighted sum of squared log residuals of coefficients `x` on columns `cols` (already times cos).
+fn loss(cols: &[&[f64]; 3], t: &[f64], w: &[f64], x: &[f64; 3]) -> f64 {
+    (0..t.len())
+        .map(|i| {
+            let f = x[0] * cols[0][i] + x[1] * cols[1][i] + x[2] * cols[2][i];
+            w[i] * (f.ln_1p() - t[i]).powi(2)
+        })
+        .sum()
+}
+
+/// Best non-negative coefficients for one channel and their loss: a linear least-squares start on
+/// f cos = exp(t) - 1, then projected Gauss-Newton on the log loss with step halving.
+fn solve_channel(cols: &[&[f64]; 3], t: &[f64], w: &[f64]) -> ([f64; 3], f64) {
+    let n = t.len();
+    let normal = |jac: &dyn Fn(usize) -> ([f64; 3], f64, f64)| {
+        let mut a = [[0.0; 3]; 3];
+        let mut r = [0.0; 3];
+        for i in 0..n {
+            let (j, y, wi) = jac(i);
+            for p in 0..3 {
+                r[p] += wi * j[p] * y;
+                for q in 0..3 {
+                    a[p][q] += wi * j[p] * j[q];
+                }
+            }
+        }
+        (a, r)
+    };
+    let (a, r) = normal(&|i| ([cols[0][i], cols[1][i], cols[2][i]], t[i].exp_m1(), w[i]));
+    let mut x = nnls3(&a, &r);
+    let mut best = loss(cols, t, w, &x);
+    for _ in 0..GN_ITERATIONS {
+        // Linearised at x: minimise sum w (r_i + J_i (y - x))^2 over y >= 0, i.e. the NNLS with
+        // right-hand side J_i . x - r_i.
+        let (a, rhs) = normal(&|i| {
+            let f = x[0] * cols[0][i] + x[1] * cols[1][i] + x[2] * cols[2][i];
+            let d = 1.0 + f;
+            let j = [cols[0][i] / d, cols[1][i] / d, cols[2][i] / d];
+            let res = d.ln() - t[i];
+            (j, j[0] * x[0] + j[1] * x[1] + j[2] * x[2] - res, w[i])
+        });
+        let y = nnls3(&a, &rhs);
+        let mut step = 1.0;
+        let mut improved = false;
+        while step > 1e-4 {
+            let cand = [0, 1, 2].map(|p| (x[p] + step * (y[p] - x[p])).max(0.0));
+            let l = loss(cols, t, w, &cand);
+            if l < best {
+                (x, best, improved) = (cand, l, true);
+                break;
+            }
+            step *= 0.5;
+        }
+        if !improved {
+            break;
+        }
+    }
+    (x, best)
+}
+
+/// Exact non-negative least squares in three unknowns from the normal equations A x = r: every
+/// active set (which unknowns are free) is solved on its free block, and the best feasible one is
+/// kept. Guard: a singular block (a column that vanishes on the samples) is skipped; the empty set
+/// (x = 0) is always feasible.
+fn nnls3(a: &[[f64; 3]; 3], r: &[f64; 3]) -> [f64; 3] {
+    // Objective up to a constant: x^T A x - 2 r^T x.
+    let objective = |x: &[f64; 3]| -> f64 {
+        let mut s = 0.0;
+        for p in 0..3 {
+            s -= 2.0 * r[p] * x[p];
+            for q in 0..3 {
+                s += x[p] * a[p][q] * x[q];
+            }
+        }
+        s
+    };
+    let mut best = ([0.0; 3], 0.0);
+    for mask in 1u8..8 {
+        let free: Vec<usize> = (0..3).filter(|&p| mask & (1 << p) != 0).collect();
+        let Some(sol) = solve_block(a, r, &free) else {
+            continue;
+        };
+        if sol.iter().any(|&v| !(v >= 0.0)) {
+            continue;
+        }
+        let mut x = [0.0; 3];
+        for (k, &p) in free.iter().enumerate() {
+            x[p] = sol[k];
+        }
+        let o = objective(&x);
+        if o < best.1 {
+            best = (x, o);
+        }
+    }
+    best.0
+}
+
+/// Solve A[free, free] y = r[free] by Gaussian elimination with partial pivoting; None if singular.
+fn solve_block(a: &[[f64; 3]; 3], r: &[f64; 3], free: &[usize]) -> Option<Vec<f64>> {
+    let k = free.len();
+    let mut m: Vec<Vec<f64>> = free
+        .iter()
+        .map(|&p| {
+            let mut row: Vec<f64> = free.iter().map(|&q| a[p][q]).collect();
+            row.push(r[p]);
+            row
+        })
+        .collect();
+    let scale = free.iter().map(|&p| a[p][p].abs()).fold(0.0, f64::max);
+    for col in 0..k {
+        let piv = (col..k).max_by(|&i, &j| m[i][col].abs().total_cmp(&m[j][col].abs()))?;
+        if !(m[piv][col].abs() > 1e-12 * scale) {
+            return None;
+        }
+        m.swap(col, piv);
+        let pivot_row = m[col].clone();
+        for row in m.iter_mut().skip(col + 1) {
+            let f = row[col] / pivot_row[col];
+            for (x, p) in row.iter_mut().zip(&pivot_row).skip(col) {
+                *x -= f * p;
+            }
+        }
+    }
+    let mut y = vec![0.0; k];
+    for row in (0..k).rev() {
+        let s: f64 = (row + 1..k).map(|c| m[row][c] * y[c]).sum();
+        y[row] = (m[row][k] - s) / m[row][row];
+    }
+    Some(y)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::brdf::fit::fit_directions;
+
+    /// Samples of a two-lobe material come back as its two lobes; a one-lobe material comes back
+    /// with the other lobe (nearly) empty.
+    #[test]
+    fn recovers_two_lobes_and_leaves_a_missing_one_empty() {
+        let truth = TwoLobes {
+            diffuse: DVec3::new(0.05, 0.1, 0.2),
+            sharp_alpha: alpha_grid(4),
+            sharp: DVec3::splat(0.3),
+            broad_alpha: alpha_grid(14),
+            broad: DVec3::new(0.5, 0.2, 0.1),
+        };
+        let pairs = fit_directions();
+        let values: Vec<DVec3> = pairs.iter().map(|&(wi, wo)| truth.eval(wi, wo)).collect();
+        let fit = fit_two_lobes(&pairs, &values, &vec![1.0; pairs.len()], 0.0);
+        let m = &fit.model;
+        assert_eq!(
+            (m.sharp_alpha, m.broad_alpha),
+            (truth.sharp_alpha, truth.broad_alpha),
+            "{}",
+            m.describe()
+        );
+        for (got, want) in [
+            (m.diffuse, truth.diffuse),
+            (m.sharp, truth.sharp),
+            (m.broad, truth.broad),
+        ] {
+            assert!((got - want).abs().max_element() < 1e-4, "{}", m.describe());
+        }
+        assert!(fit.rms_log_error < 1e-6, "{}", fit.rms_log_error);
+
+        // A single lobe: the fit explains it with one lobe and leaves the other near zero.
+        let one = crate::brdf::analytic::Ggx {
+            alpha: alpha_grid(10),
+            diffuse: DVec3::splat(0.2),
+            specular: DVec3::splat(0.6),
+        };
+        let values: Vec<DVec3> = pairs.iter().map(|&(wi, wo)| one.eval(wi, wo)).collect();
+        let fit = fit_two_lobes(&pairs, &values, &vec![1.0; pairs.len()], 0.0);
+        assert!(
+            fit.rms_log_error < 1e-6,
+            "{} {}",
+            fit.rms_log_error,
+            fit.model.describe()
+        );
+    }
+
+    /// The floor holds: samples of a sharp lobe fitted with a floor above its alpha get a sharp
+    /// lobe at the floor's grid point, never below.
+    #[test]
+    fn the_sharp_lobe_respects_its_floor() {
+        let truth = TwoLobes {
+            diffuse: DVec3::splat(0.1),
+            sharp_alpha: alpha_grid(2),
+            sharp: DVec3::splat(0.3),
+            broad_alpha: alpha_grid(15),
+            broad: DVec3::splat(0.4),
+        };
+        let pairs = fit_directions();
+        let values: Vec<DVec3> = pairs.iter().map(|&(wi, wo)| truth.eval(wi, wo)).collect();
+        let floor = alpha_grid(6) * 1.01;
+        let fit = fit_two_lobes(&pairs, &values, &vec![1.0; pairs.len()], floor);
+        assert!(fit.model.sharp_alpha >= alpha_grid(6), "{}", fit.model.describe());
+        assert!(
+            fit.rms_log_error > 1e-3,
+            "a floored fit cannot be exact: {}",
+            fit.rms_log_error
+        );
+    }
+
+    #[test]
+    fn degenerate_inputs_give_a_finite_black_or_valid_fit() {
+        let wi = crate::brdf::frame::from_spherical(0.3, 0.0);
+        let wo = crate::brdf::frame::from_spherical(0.5, 2.0);
+        // No samples at all.
+        let fit = fit_two_lobes(&[], &[], &[], 0.0);
+        assert_eq!(fit.model.diffuse, DVec3::ZERO);
+        // Only unusable samples: below the horizon, NaN, weight 0.
+        let fit = fit_two_lobes(
+            &[(wi, DVec3::new(0.0, 0.6, -0.8)), (wi, wo), (wi, wo)],
+            &[DVec3::ONE, DVec3::splat(f64::NAN), DVec3::ONE],
+            &[1.0, 1.0, 0.0],
+            0.0,
+        );
+        assert_eq!(fit.model.diffuse, DVec3::ZERO);
+        assert!(fit.rms_log_error.is_finite());
+        // One usable sample: finite, non-negative colours.
+        let fit = fit_two_lobes(&[(wi, wo)], &[DVec3::splat(0.3)], &[1.0], f64::NAN);
+        let m = &fit.model;
+        for v in [m.diffuse, m.sharp, m.broad] {
+            assert!(v.is_finite() && v.min_element() >= 0.0, "{}", m.describe());
+        }
+    }
+
+    #[test]
+    fn nnls3_matches_the_unconstrained_solution_and_clamps() {
+        // A = I: the solution is r with negatives set to 0.
+        let a = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        assert_eq!(nnls3(&a, &[1.0, -2.0, 3.0]), [1.0, 0.0, 3.0]);
+        // Singular A (two equal columns): still a feasible minimiser.
+        let a = [[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 2.0]];
+        let x = nnls3(&a, &[2.0, 2.0, 2.0]);
+        assert!((x[0] + x[1] - 2.0).abs() < 1e-12 && (x[2] - 1.0).abs() < 1e-12, "{x:?}");
+    }
+
+    fn alpha_grid(i: usize) -> f64 {
+        (ALPHA_MIN.ln() + (ALPHA_MAX / ALPHA_MIN).ln() * i as f64 / ALPHA_STEPS as f64).exp()
+    }
+}
