@@ -155,7 +155,13 @@ impl Marginal2D {
 
 /// Weight of the plain visible-normal density in the mixture (eq. 6's w_s): the share of nodes that
 /// stay where the pure-specular warp would put them, so a misestimated lobe still gets samples.
-pub const MIXTURE_SPECULAR_WEIGHT: f64 = 0.15;
+/// With the reconstruction's fitted prior (`plan::Prior::TwoLobes`) the peak's samples pay more
+/// than the estimate's f cos share (now w_f = 0.1): the fit needs the peak's height and width.
+/// Chosen on 14 MERL materials the encoder trained on (docs/tradeoff/README.md has the command),
+/// adaptive against uniform brdf_log_err wins of 56: (w_s, w_u) = (0.15, 0.5) 40, (0.3, 0.5) 41,
+/// (0.4, 0.5) 42, (0.5, 0.5) 43, (0.3, 0.6) 36; (0.4, 0.5) keeps a little f cos share and a worst
+/// 2 x 2 FLIP ratio close to (0.15, 0.5)'s (6.5x against 6.1x).
+pub const MIXTURE_SPECULAR_WEIGHT: f64 = 0.4;
 /// Weight of the equal-angle density (the uniform grid's layout): coverage of directions that
 /// neither the estimate nor the peak would visit, where a misestimated material may still reflect.
 /// Half the mass keeps a coarse level's outer ring (u.x = 1/2 at 2 x 2) out of a sharp peak: with
