@@ -74,6 +74,17 @@ pub enum Analytic {
     Ggx(Ggx),
 }
 
+/// An analytic model evaluates without boxing (a reconstruction's fitted prior, per query).
+impl Material for Analytic {
+    fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
+        match self {
+            Analytic::Lambert(m) => m.eval(wi, wo),
+            Analytic::Ward(m) => m.eval(wi, wo),
+            Analytic::Ggx(m) => m.eval(wi, wo),
+        }
+    }
+}
+
 impl Analytic {
     pub fn into_material(self) -> Box<dyn Material> {
         match self {

@@ -341,7 +341,16 @@ pub fn run_plan_report(args: PlanReportArgs) -> Result<()> {
         cfg.materials = args.materials;
     }
     let bar = indicatif::ProgressBar::new((cfg.materials.len() * 4) as u64);
-    let md = report::run(&cfg, &instrument, &args.output, &|line| {
+    with_progress(bar, |progress| report::run(&cfg, &instrument, &args.output, progress))
+}
+
+/// Run a report with `bar` ticking once per line it reports (each printed above the bar), then
+/// print the report's markdown.
+fn with_progress(
+    bar: indicatif::ProgressBar,
+    run: impl FnOnce(&dyn Fn(&str)) -> Result<String, super::PlanError>,
+) -> Result<()> {
+    let md = run(&|line| {
         bar.println(line);
         bar.inc(1);
     })?;
@@ -395,13 +404,9 @@ pub fn run_tradeoff(args: TradeoffArgs) -> Result<()> {
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} levels scored, {elapsed} (eta {eta})")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    let md = tradeoff::run(&cfg, &instrument, env, &args.output, &|line| {
-        bar.println(line);
-        bar.inc(1);
-    })?;
-    bar.finish_and_clear();
-    print!("{md}");
-    Ok(())
+    with_progress(bar, |progress| {
+        tradeoff::run(&cfg, &instrument, env, &args.output, progress)
+    })
 }
 
 #[cfg(test)]

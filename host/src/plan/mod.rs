@@ -223,9 +223,7 @@ pub enum FittedPrior {
 impl FittedPrior {
     fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
         match self {
-            FittedPrior::Lobe(Analytic::Lambert(m)) => m.eval(wi, wo),
-            FittedPrior::Lobe(Analytic::Ward(m)) => m.eval(wi, wo),
-            FittedPrior::Lobe(Analytic::Ggx(m)) => m.eval(wi, wo),
+            FittedPrior::Lobe(m) => m.eval(wi, wo),
             FittedPrior::TwoLobes(m) => m.eval(wi, wo),
         }
     }

@@ -136,11 +136,7 @@ struct Points<'a> {
     pts: Vec<&'a Candidates>,
 }
 
-impl<'a> Points<'a> {
-    fn new(cfg: &'a InstrumentConfig<f64>, pts: Vec<&'a Candidates>) -> Self {
-        Self { cfg, pts }
-    }
-
+impl Points<'_> {
     fn d(&self, a: usize, b: usize) -> f64 {
         metric(self.cfg, self.pts[a], self.pts[b])
     }
@@ -279,7 +275,7 @@ pub fn optimise(cfg: &InstrumentConfig<f64>, start: &Candidates, items: &[Candid
     }
     let mut pts = vec![start];
     pts.extend(items.iter());
-    let p = Points::new(cfg, pts);
+    let p = Points { cfg, pts };
     // Nearest neighbour: the nearest unvisited point among the neighbour list, else (all visited)
     // the nearest of the remaining points by a full scan.
     let nb = p.neighbours();
@@ -579,7 +575,10 @@ mod tests {
                 items.push(c);
             }
         }
-        let p = Points::new(&cfg, items.iter().collect());
+        let p = Points {
+            cfg: &cfg,
+            pts: items.iter().collect(),
+        };
         let nb = p.neighbours();
         for (a, list) in nb.iter().enumerate() {
             let mut all: Vec<f64> = (0..items.len()).filter(|&b| b != a).map(|b| p.d(a, b)).collect();

@@ -169,6 +169,17 @@ pub fn score(reference: &Image, test: &Image) -> Result<Comparison, PlanError> {
     })
 }
 
+/// A PSNR cell of the reports' csv files: identical renders (an exact reconstruction) have PSNR
+/// +inf, which JSON (and so `csv`) would turn into an empty cell; write it as `inf` (what
+/// `f64::from_str` reads back).
+pub(super) fn psnr_cell<S: serde::Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+    if *v == f64::INFINITY {
+        s.serialize_str("inf")
+    } else {
+        s.serialize_f64(*v)
+    }
+}
+
 /// One row of `plan-report.csv`.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Row {
@@ -187,6 +198,7 @@ pub struct Row {
     pub raster_motion_seconds: f64,
     pub lower_bound_motion_seconds: f64,
     pub rmse: f64,
+    #[serde(serialize_with = "psnr_cell")]
     pub psnr: f64,
     pub flip: f64,
     pub brdf_log_err: f64,

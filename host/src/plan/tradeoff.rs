@@ -216,16 +216,6 @@ pub fn parse_grids(s: &str) -> Result<Grids, String> {
     Ok(Grids(grids))
 }
 
-/// A PSNR cell: identical renders (an exact reconstruction) have PSNR +inf, which JSON (and so the
-/// csv writer) would turn into an empty cell; write it as `inf` (what `f64::from_str` reads back).
-fn psnr_cell<S: serde::Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
-    if *v == f64::INFINITY {
-        s.serialize_str("inf")
-    } else {
-        s.serialize_f64(*v)
-    }
-}
-
 /// One row of `tradeoff.csv`: one material x strategy x level.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct TradeRow {
@@ -241,11 +231,11 @@ pub struct TradeRow {
     /// Planned gonio time up to this level (move + settle + exposure, optimised order).
     pub gonio_seconds: f64,
     pub rmse: f64,
-    #[serde(serialize_with = "psnr_cell")]
+    #[serde(serialize_with = "super::report::psnr_cell")]
     pub psnr: f64,
     pub flip: f64,
     pub rmse_env: f64,
-    #[serde(serialize_with = "psnr_cell")]
+    #[serde(serialize_with = "super::report::psnr_cell")]
     pub psnr_env: f64,
     pub flip_env: f64,
     pub brdf_log_err: f64,
