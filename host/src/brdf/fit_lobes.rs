@@ -166,6 +166,42 @@ pub fn fit_two_lobes(pairs: &[(DVec3, DVec3)], values: &[DVec3], weights: &[f64]
     }
 }
 
+/// Samples closer than this to the mirror direction of their wi (half-vector angle, radians)
+/// measure a lobe's height, not its width: `resolvable_alpha` looks past them.
+const AT_PEAK_TAN: f64 = 1e-3;
+
+/// The roughness a sample set resolves: per incident direction, tan theta_h of the sample nearest
+/// its mirror direction (samples within `AT_PEAK_TAN` of it aside), and the median of that over
+/// the incident directions. A GGX lobe of roughness alpha has fallen to a quarter of its peak at
+/// tan theta_h = alpha, so at alpha = half this value the nearest off-peak sample still sees 4% of
+/// the peak, and a sharper lobe is seen by nothing but its peak sample. 0 when no incident
+/// direction has an off-peak sample (nothing limits the fit then). Pairs below the horizon or not
+/// finite are ignored.
+pub fn resolvable_alpha(pairs: &[(DVec3, DVec3)]) -> f64 {
+    let mut nearest: Vec<(DVec3, f64)> = Vec::new();
+    for &(wi, wo) in pairs {
+        if !(wi.z > 0.0 && wo.z > 0.0) || !wi.is_finite() || !wo.is_finite() {
+            continue;
+        }
+        // Guard: wi = -wo has no half vector; excluded by the z > 0 test above.
+        let h = (wi.normalize() + wo.normalize()).normalize();
+        let tan = (1.0 - h.z * h.z).max(0.0).sqrt() / h.z;
+        if !(tan >= AT_PEAK_TAN) {
+            continue;
+        }
+        match nearest.iter_mut().find(|(w, _)| (*w - wi).length_squared() < 1e-18) {
+            Some((_, t)) => *t = t.min(tan),
+            None => nearest.push((wi, tan)),
+        }
+    }
+    let mut t: Vec<f64> = nearest.into_iter().map(|(_, t)| t).collect();
+    if t.is_empty() {
+        return 0.0;
+    }
+    t.sort_by(f64::total_cmp);
+    t[t.len() / 2]
+}
+
 /// Weighted sum of squared log residuals of coefficients `x` on columns `cols` (already times cos).
 fn loss(cols: &[&[f64]; 3], t: &[f64], w: &[f64], x: &[f64; 3]) -> f64 {
     (0..t.len())
@@ -393,6 +429,36 @@ mod tests {
         for v in [m.diffuse, m.sharp, m.broad] {
             assert!(v.is_finite() && v.min_element() >= 0.0, "{}", m.describe());
         }
+    }
+
+    /// The resolvable roughness is the median over incident directions of the nearest off-peak
+    /// sample's tan theta_h: samples at the mirror direction, below the horizon or not finite do not
+    /// count, and a set with no off-peak sample resolves everything (0).
+    #[test]
+    fn resolvable_alpha_reads_the_nearest_off_peak_sample() {
+        use crate::brdf::frame::from_spherical;
+        let deg = |d: f64| d.to_radians();
+        // wi at theta_i, and wo at the mirror direction tilted by 2 t in the plane of incidence:
+        // the half vector is then t off the normal.
+        let at = |ti: f64, t: f64| (from_spherical(deg(ti), 0.0), from_spherical(deg(ti) + 2.0 * t, std::f64::consts::PI));
+        let slice = |ti: f64, ts: &[f64]| -> Vec<(DVec3, DVec3)> { ts.iter().map(|&t| at(ti, t)).collect() };
+        let mut pairs = Vec::new();
+        // Three incident directions, nearest off-peak samples at 0.02, 0.05 and 0.2 rad (plus a
+        // sample exactly at each peak and one farther out): median 0.05.
+        pairs.extend(slice(10.0, &[0.0, 0.02, 0.3]));
+        pairs.extend(slice(30.0, &[0.0, 0.05, 0.1]));
+        pairs.extend(slice(50.0, &[0.0, 0.2, 0.25]));
+        // Unusable pairs change nothing.
+        pairs.push((from_spherical(deg(30.0), 0.0), DVec3::new(0.0, 0.6, -0.8)));
+        pairs.push((from_spherical(deg(30.0), 0.0), DVec3::splat(f64::NAN)));
+        let r = resolvable_alpha(&pairs);
+        assert!((r - 0.05f64.tan()).abs() < 1e-9, "{r}");
+        // Only peak samples (theta_i 0 and 45 deg, normal and mirror): nothing resolves the width.
+        assert_eq!(resolvable_alpha(&[at(0.0, 0.0), at(45.0, 0.0)]), 0.0);
+        assert_eq!(resolvable_alpha(&[]), 0.0);
+        // Grazing and normal incidence stay finite.
+        let r = resolvable_alpha(&[at(0.0, 0.1), at(89.0, -0.01)]);
+        assert!(r.is_finite() && r > 0.0, "{r}");
     }
 
     #[test]

@@ -11,7 +11,8 @@
 //! material, rendered per `examples/capture.toml`), `adaptive-true` (the same warp from the true
 //! parameters: analytic materials themselves, others their GGX fit), `specular` (the paper's
 //! pure-specular warp, from the same estimate as `adaptive`, as in the paper), `uniform` (equal
-//! steps in theta_o and phi_o, the same grids, hence the same count: see the planner's nudge rule).
+//! steps in theta_o and phi_o, the same grids, hence the same count: see the planner's nudge rule;
+//! its reconstruction reads the same photo estimate as `adaptive`'s).
 
 use super::report::{csv, score, short, write, Scorer, PLOT_FLOOR};
 use super::{estimate_for, Estimate, PlanConfig, PlanError, Planner, Spacing, Strategy};
@@ -102,9 +103,15 @@ impl TradeStrategy {
             TradeStrategy::Uniform => Strategy::Uniform,
         }
     }
-    /// Whether the plan is built from the photo estimate (else from the true parameters).
+    /// Whether the plan is built from the photo estimate (else from the true parameters). The
+    /// uniform grid places nothing by its estimate, but its reconstruction reads one (the prior's
+    /// sharp-lobe floor, `plan::sharp_lobe_floor`): it gets the photo's, the information a real
+    /// scan has, so that it and `adaptive` differ only in where the directions go.
     fn uses_photo(self) -> bool {
-        matches!(self, TradeStrategy::Adaptive | TradeStrategy::Specular)
+        matches!(
+            self,
+            TradeStrategy::Adaptive | TradeStrategy::Specular | TradeStrategy::Uniform
+        )
     }
 }
 
@@ -221,7 +228,8 @@ pub fn parse_grids(s: &str) -> Result<Grids, String> {
 pub struct TradeRow {
     pub material: String,
     pub strategy: String,
-    /// The analytic estimate the plan was built from (uniform: none needed; shows the true one).
+    /// The analytic estimate the plan was built from (uniform: places nothing by it; its
+    /// reconstruction's sharp-lobe floor reads it).
     pub estimate: String,
     pub incoming: usize,
     pub level: usize,
@@ -323,14 +331,7 @@ pub fn run(
         for &strategy in &cfg.strategies {
             let (estimate, estimate_seconds) = match (strategy.uses_photo(), photo) {
                 (true, Some((e, s))) => (e, *s),
-                (false, _) => (
-                    &true_est.0,
-                    if strategy == TradeStrategy::Uniform {
-                        0.0
-                    } else {
-                        true_est.1
-                    },
-                ),
+                (false, _) => (&true_est.0, true_est.1),
                 (true, None) => unreachable!("photo estimates are made whenever a strategy needs one"),
             };
             let config = PlanConfig {
