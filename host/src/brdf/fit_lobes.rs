@@ -102,6 +102,26 @@ pub struct TwoLobeFit {
 /// mirror direction the samples missed. The caller knows how sharp a lobe its data can resolve
 /// (a plan: the estimate it placed its nodes for). Panics if the lengths differ.
 pub fn fit_two_lobes(pairs: &[(DVec3, DVec3)], values: &[DVec3], weights: &[f64], min_alpha: f64) -> TwoLobeFit {
+    fit_two_lobes_with(pairs, values, weights, min_alpha, LobeFresnel::Bounded)
+}
+
+/// Whether the fitted lobes may rise toward grazing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LobeFresnel {
+    /// One colour per lobe at every angle (kg = ks).
+    None,
+    /// A Schlick rise with ks <= kg <= ks / `F0_MIN` (the default).
+    Bounded,
+}
+
+/// `fit_two_lobes` with the choice of Fresnel rise.
+pub fn fit_two_lobes_with(
+    pairs: &[(DVec3, DVec3)],
+    values: &[DVec3],
+    weights: &[f64],
+    min_alpha: f64,
+    fresnel: LobeFresnel,
+) -> TwoLobeFit {
     assert_eq!(pairs.len(), values.len(), "one value per direction pair");
     assert_eq!(pairs.len(), weights.len(), "one weight per direction pair");
     // Keep only the samples that carry weight (guards as in fit::fit_samples).
@@ -169,13 +189,25 @@ pub fn fit_two_lobes(pairs: &[(DVec3, DVec3)], values: &[DVec3], weights: &[f64]
             // coeffs[c] = [kd, ks_sharp, kg_sharp, ks_broad, kg_broad].
             let mut coeffs = [[0.0; 5]; 3];
             let mut loss = 0.0;
-            let (sf, bf) = (with_fresnel(&basis[s]), with_fresnel(&basis[b]));
-            let cols = [&diffuse[..], &basis[s][..], &sf[..], &basis[b][..], &bf[..]];
+            let (sf, bf) = match fresnel {
+                LobeFresnel::Bounded => (with_fresnel(&basis[s]), with_fresnel(&basis[b])),
+                LobeFresnel::None => (Vec::new(), Vec::new()),
+            };
             for c in 0..3 {
-                let (x, l) = solve_channel(&cols, &target[c], &w);
-                let (ks, kg) = to_colours(x[1], x[2]);
-                let (bs, bg) = to_colours(x[3], x[4]);
-                coeffs[c] = [x[0], ks, kg, bs, bg];
+                let (x, l) = match fresnel {
+                    LobeFresnel::Bounded => {
+                        let cols = [&diffuse[..], &basis[s][..], &sf[..], &basis[b][..], &bf[..]];
+                        let (x, l) = solve_channel(&cols, &target[c], &w);
+                        let (ks, kg) = to_colours(x[1], x[2]);
+                        let (bs, bg) = to_colours(x[3], x[4]);
+                        ([x[0], ks, kg, bs, bg], l)
+                    }
+                    LobeFresnel::None => {
+                        let (x, l) = solve_channel(&[&diffuse[..], &basis[s][..], &basis[b][..]], &target[c], &w);
+                        ([x[0], x[1], x[1], x[2], x[2]], l)
+                    }
+                };
+                coeffs[c] = x;
                 loss += l;
             }
             if best.is_none_or(|(l, ..)| loss < l) {

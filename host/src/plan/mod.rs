@@ -199,8 +199,11 @@ pub enum Prior {
     /// instead of having to describe its shape.
     Fit,
     /// As `Fit` with Lambert plus two GGX lobes (`brdf::fit_lobes`): a sharp peak and a broad halo,
-    /// the shape of most paints and plastics.
+    /// the shape of most paints and plastics, each with a bounded Fresnel rise toward grazing.
     TwoLobes,
+    /// `TwoLobes` without the Fresnel rise (the lobes keep one colour at every angle): the
+    /// ablation that shows what the rise is worth (docs/tradeoff/README.md).
+    TwoLobesPlain,
 }
 
 impl fmt::Display for Prior {
@@ -209,6 +212,7 @@ impl fmt::Display for Prior {
             Prior::None => "none",
             Prior::Fit => "fit",
             Prior::TwoLobes => "two-lobes",
+            Prior::TwoLobesPlain => "two-lobes-plain",
         })
     }
 }
@@ -826,7 +830,7 @@ impl Plan {
         )?;
         let prior = match prior {
             Prior::None => None,
-            Prior::Fit | Prior::TwoLobes => {
+            Prior::Fit | Prior::TwoLobes | Prior::TwoLobesPlain => {
                 let measured = &self.directions[..limit];
                 let pairs: Vec<(DVec3, DVec3)> = measured.iter().map(|d| (d.wi, d.wo)).collect();
                 // Each sample stands for the equal-angle measure its warp gives it (p_angles / p_warp):
@@ -851,7 +855,18 @@ impl Plan {
                 } else {
                     let min_alpha = sharp_lobe_floor(self.specular_alpha, &pairs);
                     FittedPrior::TwoLobes(
-                        crate::brdf::fit_lobes::fit_two_lobes(&pairs, values, &weights, min_alpha).model,
+                        crate::brdf::fit_lobes::fit_two_lobes_with(
+                            &pairs,
+                            values,
+                            &weights,
+                            min_alpha,
+                            if prior == Prior::TwoLobesPlain {
+                                crate::brdf::fit_lobes::LobeFresnel::None
+                            } else {
+                                crate::brdf::fit_lobes::LobeFresnel::Bounded
+                            },
+                        )
+                        .model,
                     )
                 })
             }

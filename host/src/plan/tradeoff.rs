@@ -499,9 +499,13 @@ fn markdown(cfg: &TradeoffConfig, rows: &[TradeRow]) -> String {
                  and the fitted lobe is evaluated at the query)"
             }
             super::Prior::TwoLobes => {
-                " (each level's measurements are fitted with Lambert + two GGX lobes, `brdf::fit_lobes`, the \
-                 `gonio brdf fit` loss, each sample weighted by the equal-angle measure it stands for; the grid \
-                 interpolates the residuals and the fitted lobes are evaluated at the query)"
+                " (each level's measurements are fitted with Lambert + two GGX lobes with a bounded Schlick \
+                 Fresnel rise each, `brdf::fit_lobes`, the `gonio brdf fit` loss, each sample weighted by the \
+                 equal-angle measure it stands for; the grid interpolates the residuals and the fitted lobes \
+                 are evaluated at the query)"
+            }
+            super::Prior::TwoLobesPlain => {
+                " (as two-lobes, without the Fresnel rise: an ablation)"
             }
             super::Prior::None => " (the grid interpolates the measurements themselves)",
         }
@@ -533,6 +537,7 @@ fn markdown(cfg: &TradeoffConfig, rows: &[TradeRow]) -> String {
         table1(&mut s, cfg, rows);
     }
     versus_uniform(&mut s, cfg, rows);
+    geometric_means(&mut s, cfg, rows);
     let _ = writeln!(
         s,
         "\nFigure: `tradeoff.png` (per material: FLIP under the point light, FLIP under the environment, brdf_log_err, against gonio minutes; log-log)."
@@ -691,6 +696,32 @@ fn versus_uniform(s: &mut String, cfg: &TradeoffConfig, rows: &[TradeRow]) {
             s,
             "| **all** | {name} | {wins_total}/{total}; >= 3/4 of levels on {materials_ok}/{} materials | {worst:.3} | {worst_env:.3} |",
             cfg.materials.len()
+        );
+    }
+}
+
+/// Per strategy, the geometric mean over its rows (every material and level) of each error: one
+/// number per strategy that a few large errors do not dominate. Errors are floored at
+/// `PLOT_FLOOR` so that an exact reconstruction (0) keeps the mean finite.
+fn geometric_means(s: &mut String, cfg: &TradeoffConfig, rows: &[TradeRow]) {
+    let _ = writeln!(
+        s,
+        "\n## Geometric means over materials and levels\n\n| strategy | rows | brdf_log_err | FLIP | FLIP env |\n|---|---|---|---|---|"
+    );
+    for st in &cfg.strategies {
+        let name = st.to_string();
+        let mine: Vec<&TradeRow> = rows.iter().filter(|r| r.strategy == name).collect();
+        let gm = |f: fn(&TradeRow) -> f64| -> f64 {
+            let n = mine.len().max(1) as f64;
+            (mine.iter().map(|r| f(r).max(PLOT_FLOOR).ln()).sum::<f64>() / n).exp()
+        };
+        let _ = writeln!(
+            s,
+            "| {name} | {} | {:.5} | {:.4} | {:.4} |",
+            mine.len(),
+            gm(|r| r.brdf_log_err),
+            gm(|r| r.flip),
+            gm(|r| r.flip_env)
         );
     }
 }
@@ -854,6 +885,10 @@ mod tests {
         }
         // A custom material list compares with nobody's Table 1.
         assert!(!md.contains("## Table 1") && md.contains("## Against the uniform grid"));
+        assert!(
+            md.contains("## Geometric means") && md.contains("| uniform | 8 |"),
+            "{md}"
+        );
         assert!(dir.path().join("tradeoff.png").exists() && dir.path().join("tradeoff.md").exists());
     }
 
