@@ -943,13 +943,15 @@ impl Plan {
 
 /// The sharpest lobe the two-lobe prior may fit to a level's measurements `pairs`, for a plan built
 /// on an estimate of roughness `estimate_alpha`: the smaller of half the estimate and half the
-/// roughness the samples resolve (`fit_lobes::resolvable_alpha`). A lobe far sharper than both is
-/// unconstrained between the samples: fitted to a few of them it puts a spike at every mirror
-/// direction they missed. Half the estimate alone (the rule before) kept the fit from the true
-/// peak wherever the encoder overestimated alpha, even at fine levels whose nodes crowd the peak
-/// (maroon-plastic: estimate 0.022 against a GGX fit of 0.011; 16x16 brdf_log_err 0.0088, with this
-/// rule 0.0027), and it gave the uniform grid, which places nothing by the estimate, a floor from
-/// it. Both halves were chosen on the 14 training-set MERL materials of docs/tradeoff/README.md.
+/// roughness the samples resolve (`fit_lobes::resolvable_alpha`, from the nearest off-peak sample
+/// of each slice). A lobe far sharper than both is unconstrained between the samples: fitted to a
+/// few of them it puts a spike at every mirror direction they missed. Half the estimate alone (the
+/// rule before) kept the fit from the true peak wherever the encoder overestimated alpha, and gave
+/// the uniform grid, which places nothing by the estimate, a floor from it. In practice the
+/// mixture's floor is the samples' from the first level on (in oblique slices its u.x = 0 node,
+/// the visible-normal warp's disk centre, sits just off the mirror direction: the floor is 0.0095
+/// for an estimate of 0.1), and the uniform grid's falls from half the estimate as its nodes close
+/// in (`plan::tests`). Chosen on the 14 training-set MERL materials of docs/tradeoff/README.md.
 pub fn sharp_lobe_floor(estimate_alpha: f64, pairs: &[(DVec3, DVec3)]) -> f64 {
     (SHARP_FLOOR_SHARE * estimate_alpha).min(SHARP_FLOOR_SHARE * crate::brdf::fit_lobes::resolvable_alpha(pairs))
 }

@@ -379,3 +379,41 @@ fn a_fitted_prior_recovers_a_lobe_the_grid_alone_cannot() {
     assert!(fit < 2e-3, "{fit}");
     assert!(two < 0.5 * none, "{two} vs {none}");
 }
+
+/// The prior's sharp-lobe floor: never above half the estimate, and never rising as the levels
+/// refine (a finer level only adds samples, so each slice's nearest off-peak sample can only come
+/// closer); the uniform grid's floor follows its own node spacing down, more than halving from 2x2
+/// to 16x16. Extreme: a mirror-like estimate (the planner's alpha clamp, 0.01, halves to 0.005).
+#[test]
+fn the_sharp_lobe_floor_falls_with_the_level_and_never_exceeds_half_the_estimate() {
+    for (alpha, strategy) in [
+        (0.1, Strategy::Mixture),
+        (0.1, Strategy::Uniform),
+        (1e-4, Strategy::Mixture),
+    ] {
+        let estimate = ggx_estimate(alpha, 0.1);
+        let plan = plan_for(estimate, strategy, 4);
+        let floors: Vec<f64> = plan
+            .levels
+            .iter()
+            .map(|l| {
+                let pairs: Vec<(DVec3, DVec3)> = plan.directions[..l.cumulative_directions]
+                    .iter()
+                    .map(|d| (d.wi, d.wo))
+                    .collect();
+                sharp_lobe_floor(plan.specular_alpha, &pairs)
+            })
+            .collect();
+        println!("{strategy} alpha {alpha}: floors per level {floors:?}");
+        for f in &floors {
+            assert!(f.is_finite() && *f >= 0.0 && *f <= SHARP_FLOOR_SHARE * plan.specular_alpha + 1e-15);
+        }
+        assert!(
+            floors.windows(2).all(|w| w[1] <= w[0] + 1e-15),
+            "{strategy}: {floors:?}"
+        );
+        if strategy == Strategy::Uniform {
+            assert!(floors[3] < 0.5 * floors[0], "{floors:?}");
+        }
+    }
+}
