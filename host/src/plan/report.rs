@@ -535,9 +535,11 @@ fn markdown(cfg: &ReportConfig, rows: &[Row], spacing: &[Row], stops: &[StopChoi
         wins[0][0], wins[0][1], wins[1][0], wins[1][1]
     );
     let _ = writeln!(s, "## Motion time: optimised order vs raster (generation) order vs lower bound\n\n\
-        Lower bound: per level, the cheapest entry move from any earlier pose plus the minimum spanning tree of the level's \
-        new directions, under d(a, b) = the least synchronised move time over every IK pose of a and of b. A level's path \
-        is an entry move plus a spanning tree of its directions, and every real move costs at least d, so no order can beat it.\n\n\
+        Lower bound: per level, the degree bound of an open path through the level's new directions (`plan::order`): every \
+        direction but the path's two ends has two moves, each end one, so the moves add up to at least half the sum over the \
+        directions of their two shortest moves, less the two largest second-shortest (the entry move counts as 0), under \
+        d(a, b) = the least synchronised move time over every IK pose of a and of b. Every real move costs at least d, so no \
+        order can beat it.\n\n\
         | material | strategy | grid | motion s | raster s | bound s | raster/opt | opt/bound |\n|---|---|---|---|---|---|---|---|");
     for r in rows {
         let _ = writeln!(
