@@ -50,7 +50,7 @@ pub struct PlanArgs {
     /// Deepest level the target and budget modes consider (a power of two).
     #[arg(long, default_value_t = 16)]
     pub max_grid: usize,
-    #[arg(long, value_enum, default_value_t = Strategy::Mixture)]
+    #[arg(long, value_enum, default_value_t = Strategy::Auto)]
     pub strategy: Strategy,
     #[arg(long, value_enum, default_value_t = Spacing::Angle)]
     pub spacing: Spacing,
@@ -89,7 +89,8 @@ pub struct TradeoffArgs {
     /// Material specs (repeatable); default: four MERL fits and two analytic lobes.
     #[arg(long = "material", value_name = "SPEC")]
     pub materials: Vec<String>,
-    /// A named run: table1 (the paper's Table 1) or heldout (the encoder's 15 held-out MERL materials).
+    /// A named run: table1 (the paper's Table 1), heldout (the encoder's 15 held-out MERL materials) or
+    /// training (14 MERL materials the encoder trained on, where the planner's constants are chosen).
     #[arg(long, value_enum, conflicts_with = "materials")]
     pub preset: Option<tradeoff::Preset>,
     #[arg(long)]
@@ -98,7 +99,7 @@ pub struct TradeoffArgs {
     /// Default 2x2,4x4,8x8,16x16 (table1: 2x2,4x4,8x4,8x8).
     #[arg(long, value_parser = tradeoff::parse_grids)]
     pub levels: Option<tradeoff::Grids>,
-    /// Strategies (repeatable); default all four.
+    /// Strategies (repeatable); default all five.
     #[arg(long = "strategy", value_enum)]
     pub strategies: Vec<tradeoff::TradeStrategy>,
     #[arg(long, default_value_t = 8)]
@@ -262,7 +263,7 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
         l.n,
         l.m,
         plan.thetas.len(),
-        config.strategy,
+        plan.strategy_label(),
         config.spacing,
         plan.dropped.below_horizon,
         plan.dropped.blocked,
@@ -309,6 +310,7 @@ fn plan_json(plan: &Plan, estimate: &str, rule: &str, replay_motion: f64) -> Res
     let v = serde_json::json!({
         "estimate": estimate,
         "strategy": plan.config.strategy.to_string(),
+        "warp": plan.warp.to_string(),
         "spacing": plan.config.spacing.to_string(),
         "incoming_theta_deg": plan.thetas.iter().map(|t| t.to_degrees()).collect::<Vec<_>>(),
         "rule": rule,

@@ -292,6 +292,8 @@ fn query_lookup_and_log_interpolation_beat_the_plain_reconstruction_on_a_glossy_
     let err = |lookup: Lookup, interp: Interp| {
         let plan = planner
             .plan(&PlanConfig {
+                // The mixture: a warp that depends on wi, so the two lookups differ.
+                strategy: Strategy::Mixture,
                 grids: square_grids(3),
                 lookup,
                 interp,
@@ -332,6 +334,7 @@ fn a_fitted_prior_recovers_a_lobe_the_grid_alone_cannot() {
     let run = |prior: Prior| {
         let plan = planner
             .plan(&PlanConfig {
+                strategy: Strategy::Mixture,
                 grids: square_grids(2),
                 prior,
                 ..PlanConfig::default()
@@ -415,5 +418,28 @@ fn the_sharp_lobe_floor_falls_with_the_level_and_never_exceeds_half_the_estimate
         if strategy == Strategy::Uniform {
             assert!(floors[3] < 0.5 * floors[0], "{floors:?}");
         }
+    }
+}
+
+/// `auto` follows the lobe for a sharp estimate and takes equal angles for a rough one, and its
+/// plan is exactly the plan of the strategy it resolved to. Extremes: alpha 1e-4 (mirror-like),
+/// the threshold itself, alpha 1, and NaN (the material-blind grid).
+#[test]
+fn auto_resolves_by_the_estimate_and_plans_what_it_resolved_to() {
+    assert_eq!(Strategy::Auto.resolve(1e-4), Strategy::Mixture);
+    assert_eq!(Strategy::Auto.resolve(AUTO_SHARP_ALPHA * 0.999), Strategy::Mixture);
+    assert_eq!(Strategy::Auto.resolve(AUTO_SHARP_ALPHA), Strategy::Uniform);
+    assert_eq!(Strategy::Auto.resolve(1.0), Strategy::Uniform);
+    assert_eq!(Strategy::Auto.resolve(f64::NAN), Strategy::Uniform);
+    for s in [Strategy::Mixture, Strategy::Specular, Strategy::Uniform] {
+        assert_eq!(s.resolve(0.01), s);
+        assert_eq!(s.resolve(0.5), s);
+    }
+    for (alpha, want) in [(0.02, Strategy::Mixture), (0.2, Strategy::Uniform)] {
+        let auto = plan_for(ggx_estimate(alpha, 0.1), Strategy::Auto, 3);
+        let direct = plan_for(ggx_estimate(alpha, 0.1), want, 3);
+        assert_eq!(auto.warp, want);
+        assert_eq!(auto.strategy_label(), format!("auto ({want})"));
+        assert_eq!(auto.wire(), direct.wire(), "alpha {alpha}");
     }
 }

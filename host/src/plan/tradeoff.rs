@@ -7,12 +7,14 @@
 //! environment light (`examples/sphere-sky.toml` by default), RMSE / PSNR of the 8-bit sRGB images
 //! and mean LDR FLIP, plus `brdf_log_err` over the fit's direction set.
 //!
-//! Strategies: `adaptive` (the mixture warp of the encoder's estimate from a capture photo of the
-//! material, rendered per `examples/capture.toml`), `adaptive-true` (the same warp from the true
-//! parameters: analytic materials themselves, others their GGX fit), `specular` (the paper's
-//! pure-specular warp, from the same estimate as `adaptive`, as in the paper), `uniform` (equal
-//! steps in theta_o and phi_o, the same grids, hence the same count: see the planner's nudge rule;
-//! its reconstruction reads the same photo estimate as `adaptive`'s).
+//! Strategies: `adaptive` (the planner's default, `auto`, from the encoder's estimate on a capture
+//! photo of the material rendered per `examples/capture.toml`: the mixture warp for a sharp
+//! estimate, the uniform grid for a rough one), `adaptive-true` (the same from the true parameters:
+//! analytic materials themselves, others their GGX fit), `mixture` (the mixture warp from the
+//! encoder's estimate whatever its roughness), `specular` (the paper's pure-specular warp, from
+//! the same estimate, as in the paper), `uniform` (equal steps in theta_o and phi_o, the same
+//! grids, hence the same count: see the planner's nudge rule; its reconstruction reads the same
+//! photo estimate as `adaptive`'s).
 
 use super::report::{csv, score, short, write, Scorer, PLOT_FLOOR};
 use super::{estimate_for, Estimate, PlanConfig, PlanError, Planner, Spacing, Strategy};
@@ -45,6 +47,26 @@ pub const TABLE1_PAPER_PSNR: [(&str, [f64; 4]); 4] = [
     ("nbrdf:green-metallic-paint", [25.0, 32.17, 32.01, 33.94]),
     ("nbrdf:white-diffuse-bball", [30.36, 30.22, 30.054, 30.65]),
 ];
+/// Fourteen MERL materials the encoder trained on, spread over its training set (metals, paints,
+/// plastics, wood): where the planner's and the reconstruction's constants are chosen (mixture
+/// weights, the prior's floor and Fresnel bound, `auto`'s threshold), so that the held-out set
+/// stays a test (docs/tradeoff/README.md).
+pub const TRAINING_MATERIALS: [&str; 14] = [
+    "nbrdf:alum-bronze",
+    "nbrdf:blue-acrylic",
+    "nbrdf:chrome",
+    "nbrdf:dark-red-paint",
+    "nbrdf:fruitwood-241",
+    "nbrdf:gold-metallic-paint2",
+    "nbrdf:nickel",
+    "nbrdf:orange-paint",
+    "nbrdf:pvc",
+    "nbrdf:silver-metallic-paint",
+    "nbrdf:specular-blue-phenolic",
+    "nbrdf:teflon",
+    "nbrdf:white-paint",
+    "nbrdf:two-layer-silver",
+];
 /// The encoder's held-out MERL test materials (`host/models/README.md`): never seen in training.
 pub const HELDOUT_MATERIALS: [&str; 15] = [
     "nbrdf:black-oxidized-steel",
@@ -67,19 +89,23 @@ pub const HELDOUT_MATERIALS: [&str; 15] = [
 /// A strategy of the trade-off report.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum TradeStrategy {
-    /// Mixture warp from the encoder's estimate on a capture photo.
+    /// The planner's default (`auto`) from the encoder's estimate on a capture photo: the mixture
+    /// warp for a sharp estimate, the uniform grid for a rough one.
     Adaptive,
-    /// Mixture warp from the true parameters (analytic: itself; others: GGX fit).
+    /// `adaptive` from the true parameters (analytic: itself; others: GGX fit).
     AdaptiveTrue,
+    /// The mixture warp from the encoder's estimate, whatever its roughness.
+    Mixture,
     /// The paper's pure-specular warp (GGX visible normals), from the encoder's estimate.
     Specular,
     /// Equal steps in (theta_o, phi_o).
     Uniform,
 }
 
-pub const ALL_STRATEGIES: [TradeStrategy; 4] = [
+pub const ALL_STRATEGIES: [TradeStrategy; 5] = [
     TradeStrategy::Adaptive,
     TradeStrategy::AdaptiveTrue,
+    TradeStrategy::Mixture,
     TradeStrategy::Specular,
     TradeStrategy::Uniform,
 ];
@@ -89,6 +115,7 @@ impl fmt::Display for TradeStrategy {
         f.write_str(match self {
             TradeStrategy::Adaptive => "adaptive",
             TradeStrategy::AdaptiveTrue => "adaptive-true",
+            TradeStrategy::Mixture => "mixture",
             TradeStrategy::Specular => "specular",
             TradeStrategy::Uniform => "uniform",
         })
@@ -98,7 +125,8 @@ impl fmt::Display for TradeStrategy {
 impl TradeStrategy {
     fn planner_strategy(self) -> Strategy {
         match self {
-            TradeStrategy::Adaptive | TradeStrategy::AdaptiveTrue => Strategy::Mixture,
+            TradeStrategy::Adaptive | TradeStrategy::AdaptiveTrue => Strategy::Auto,
+            TradeStrategy::Mixture => Strategy::Mixture,
             TradeStrategy::Specular => Strategy::Specular,
             TradeStrategy::Uniform => Strategy::Uniform,
         }
@@ -110,7 +138,7 @@ impl TradeStrategy {
     fn uses_photo(self) -> bool {
         matches!(
             self,
-            TradeStrategy::Adaptive | TradeStrategy::Specular | TradeStrategy::Uniform
+            TradeStrategy::Adaptive | TradeStrategy::Mixture | TradeStrategy::Specular | TradeStrategy::Uniform
         )
     }
 }
@@ -122,6 +150,8 @@ pub enum Preset {
     Table1,
     /// The encoder's 15 held-out MERL materials at 2x2 .. 16x16 (the "beyond the paper" test).
     Heldout,
+    /// 14 MERL materials the encoder trained on, at 2x2 .. 16x16: where constants are chosen.
+    Training,
 }
 
 impl fmt::Display for Preset {
@@ -129,6 +159,7 @@ impl fmt::Display for Preset {
         f.write_str(match self {
             Preset::Table1 => "table1",
             Preset::Heldout => "heldout",
+            Preset::Training => "training",
         })
     }
 }
@@ -191,6 +222,11 @@ impl TradeoffConfig {
             },
             Preset::Heldout => Self {
                 materials: HELDOUT_MATERIALS.iter().map(|s| s.to_string()).collect(),
+                preset: Some(p),
+                ..Self::default()
+            },
+            Preset::Training => Self {
+                materials: TRAINING_MATERIALS.iter().map(|s| s.to_string()).collect(),
                 preset: Some(p),
                 ..Self::default()
             },
@@ -634,6 +670,11 @@ fn table1(s: &mut String, cfg: &TradeoffConfig, rows: &[TradeRow]) {
 /// material that the fitted prior recovers): the comparison is a tie, neither a win nor a loss.
 const EXACT_LOG_ERR: f64 = 1e-6;
 
+/// Whether two rows scored alike on every error: the same plan and reconstruction.
+fn same_scores(a: &TradeRow, b: &TradeRow) -> bool {
+    a.brdf_log_err == b.brdf_log_err && a.flip == b.flip && a.flip_env == b.flip_env && a.rmse == b.rmse
+}
+
 /// FLIP of a strategy over uniform's; two identical renders (both 0) are a ratio of 1.
 fn flip_ratio(a: f64, u: f64) -> f64 {
     if u > 0.0 {
@@ -654,7 +695,7 @@ fn versus_uniform(s: &mut String, cfg: &TradeoffConfig, rows: &[TradeRow]) {
     let _ = writeln!(
         s,
         "\n## Against the uniform grid of the same size\n\nPer material: levels where the strategy's brdf_log_err is lower than uniform's \
-         (both below 1e-6: an exact tie, not counted as a win), and the worst FLIP ratio (strategy / uniform; > 1 is a loss) over its levels, point light and environment.\n\n\
+         (both below 1e-6: an exact tie; the same scores as uniform: the strategy planned the uniform grid itself; neither counts as a win), and the worst FLIP ratio (strategy / uniform; > 1 is a loss) over its levels, point light and environment.\n\n\
          | material | strategy | brdf_log_err wins | worst FLIP ratio | worst FLIP env ratio |\n|---|---|---|---|---|"
     );
     let levels = cfg.grids.len();
@@ -663,12 +704,15 @@ fn versus_uniform(s: &mut String, cfg: &TradeoffConfig, rows: &[TradeRow]) {
         let (mut materials_ok, mut wins_total, mut total) = (0, 0, 0);
         let (mut worst, mut worst_env) = (0.0f64, 0.0f64);
         for m in &cfg.materials {
-            let (mut wins, mut ties) = (0, 0);
+            let (mut wins, mut ties, mut same) = (0, 0, 0);
             let (mut w, mut we) = (0.0f64, 0.0f64);
             for level in 1..=levels {
                 if let (Some(a), Some(u)) = (find(rows, m, &name, level), find(rows, m, "uniform", level)) {
                     if a.brdf_log_err.max(u.brdf_log_err) < EXACT_LOG_ERR {
                         ties += 1;
+                    } else if same_scores(a, u) {
+                        // The strategy planned the uniform grid itself (`auto` on a rough estimate).
+                        same += 1;
                     } else {
                         wins += (a.brdf_log_err < u.brdf_log_err) as usize;
                     }
@@ -676,11 +720,13 @@ fn versus_uniform(s: &mut String, cfg: &TradeoffConfig, rows: &[TradeRow]) {
                     we = we.max(flip_ratio(a.flip_env, u.flip_env));
                 }
             }
-            let tied = if ties > 0 {
-                format!(" ({ties} exact ties)")
-            } else {
-                String::new()
-            };
+            let mut tied = String::new();
+            if ties > 0 {
+                tied += &format!(" ({ties} exact ties)");
+            }
+            if same > 0 {
+                tied += &format!(" ({same} the uniform grid itself)");
+            }
             let _ = writeln!(
                 s,
                 "| {} | {name} | {wins}/{levels}{tied} | {w:.3} | {we:.3} |",
@@ -914,6 +960,16 @@ mod tests {
             compact("ggx:alpha=0.0156064,diffuse=30.8368/5.3386/0,specular=1"),
             "ggx:alpha=0.0156,diffuse=30.8/5.34/0,specular=1"
         );
+    }
+
+    /// Constants are chosen on the training preset and judged on the held-out one: the two never share a material.
+    #[test]
+    fn training_and_heldout_presets_are_disjoint() {
+        for m in TRAINING_MATERIALS {
+            assert!(!HELDOUT_MATERIALS.contains(&m), "{m}");
+            assert!(parse_material(m).is_ok(), "{m}");
+        }
+        assert_eq!(TradeoffConfig::preset(Preset::Training).materials.len(), 14);
     }
 
     #[test]

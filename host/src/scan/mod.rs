@@ -547,11 +547,12 @@ fn prepare_fresh(
     let planned = encode_checked(plan.truncate(level), &instrument)?;
     times.plan = t.elapsed().as_secs_f64();
     note(&format!(
-        "plan: {} directions, level {level} ({}x{} x {} incoming; {rule}), {:.1} min instrument time ({:.2} s)",
+        "plan: {} directions, level {level} ({}x{} x {} incoming, {} strategy; {rule}), {:.1} min instrument time ({:.2} s)",
         planned.wire.len(),
         1 << level,
         1 << level,
         planned.plan.thetas.len(),
+        planned.plan.strategy_label(),
         planned.plan.total_seconds() / 60.0,
         times.plan
     ));

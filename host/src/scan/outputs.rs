@@ -301,6 +301,7 @@ fn grid_json(i: &OutputInputs) -> Result<String, serde_json::Error> {
         "units": "BRDF in 1/sr, linear RGB; angles in degrees",
         "estimate": i.record.estimate,
         "strategy": i.record.strategy,
+        "warp": plan.warp.to_string(),
         "spacing": i.record.spacing,
         "layout": "nested",
         "max_level": plan.config.grids.len(),
@@ -352,7 +353,7 @@ pub fn finish_report(
     let _ = writeln!(
         md,
         "- plan: {} strategy, {} spacing, {} incoming elevations, level {} ({}x{} outgoing); rule: {}",
-        record.strategy,
+        plan.strategy_label(),
         record.spacing,
         record.incoming,
         record.level,
