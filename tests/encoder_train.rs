@@ -113,3 +113,42 @@ fn an_ensemble_with_flip_averaging_exports_what_candle_computes() {
     }
     assert!(differs, "the ensemble is not just its first member");
 }
+
+#[test]
+fn cross_validation_predicts_every_row_from_a_model_that_never_saw_it() {
+    use gonio::encoder::train::{cross_validate, cv_csv, cv_summary};
+    let dir = tempfile::tempdir().expect("tempdir");
+    dataset::generate(ModelKind::Ggx, 6, false, 17, dir.path()).expect("dataset");
+    let data = dataset::load(dir.path(), &|_| true).expect("load");
+    let cfg = TrainConfig {
+        batch: 2,
+        max_steps: Some(2),
+        ..TrainConfig::default()
+    };
+    let (rows, _) = cross_validate(&data, None, None, &cfg, 1, false, 3, None, &mut |_| {}).expect("cv");
+    assert_eq!(rows.len(), 6, "every row is held out once");
+    for row in &rows {
+        let i = data
+            .samples
+            .iter()
+            .position(|s| s.file == row.file)
+            .expect("a dataset row");
+        assert_eq!(row.fold, i % 3, "{}", row.file);
+        assert_eq!(row.truth, data.samples[i].params);
+        assert!(row.linear[0].is_finite() && row.png.iter().all(|p| p[0].is_finite()));
+    }
+    // A model trained on folds 1 and 2 only predicts fold 0 as the cross-validation did.
+    let (only, _) = cross_validate(&data, None, None, &cfg, 1, false, 3, Some(0), &mut |_| {}).expect("cv");
+    assert_eq!(only.len(), 2);
+    for (a, b) in only.iter().zip(rows.iter().filter(|r| r.fold == 0)) {
+        assert_eq!(a.file, b.file);
+        assert!(
+            (a.linear[0] - b.linear[0]).abs() <= 1e-6 * b.linear[0],
+            "same seed, same folds, same model"
+        );
+    }
+    assert!(cv_summary(ModelKind::Ggx, &rows)[0].contains("6 held-out"));
+    assert_eq!(cv_csv(ModelKind::Ggx, &rows).lines().count(), 7);
+    assert!(cross_validate(&data, None, None, &cfg, 1, false, 1, None, &mut |_| {}).is_err());
+    assert!(cross_validate(&data, None, None, &cfg, 1, false, 3, Some(3), &mut |_| {}).is_err());
+}

@@ -216,3 +216,28 @@ fn datasets_are_written_and_read_back() {
     let missing = dataset::load(&dir.path().join("nope"), &|_| true).err().expect("error");
     assert!(missing.to_string().contains("labels.csv"), "{missing}");
 }
+
+#[test]
+fn two_lobe_datasets_are_labelled_by_the_ggx_fit() {
+    // The label of a material that is one GGX lobe is that lobe's alpha: the fit recovers it.
+    let one = crate::brdf::parse_material("ggx:alpha=0.12,diffuse=0.1/0.1/0.1").expect("spec");
+    let a = dataset::ggx_fit_alpha(one.as_ref()).expect("fit");
+    assert!((a - 0.12).abs() < 0.005, "fit alpha {a}");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let samples =
+        dataset::generate_family(ModelKind::Ggx, 3, dataset::Family::TwoLobes, 9, dir.path()).expect("generate");
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    for s in &samples {
+        // The same draws as the generator: material, then intensity.
+        let lobes = dataset::sample_two_lobes(&mut rng);
+        let _intensity: f64 = rng.random();
+        assert!(lobes.sharp_alpha < lobes.broad_alpha && lobes.broad_alpha <= 1.0);
+        assert_eq!(s.spec, format!("twolobes: {}", lobes.describe()));
+        assert_eq!(s.params, vec![dataset::ggx_fit_alpha(&lobes).expect("fit")]);
+    }
+    let loaded = dataset::load(dir.path(), &|_| true).expect("load");
+    assert_eq!(loaded.kind, ModelKind::Ggx);
+    assert_eq!(loaded.samples, samples);
+    let ward = dataset::generate_family(ModelKind::Ward, 1, dataset::Family::TwoLobes, 1, &dir.path().join("w"));
+    assert!(ward.err().expect("refused").to_string().contains("GGX"));
+}
