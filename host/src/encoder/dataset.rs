@@ -164,6 +164,9 @@ pub fn merl_materials() -> Result<Vec<(String, f64, &'static str)>, String> {
         .collect()
 }
 
+/// One image to render: (spec, parameters, split, light intensity, the material when it has no spec).
+type Job = (String, Vec<f64>, String, f64, Option<TwoLobes>);
+
 /// Which materials a dataset draws.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Family {
@@ -200,7 +203,7 @@ pub fn generate_family(
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     // (spec, params, split, intensity, two-lobe material) of every image, drawn up front so the
     // result does not depend on threads.
-    let mut jobs: Vec<(String, Vec<f64>, String, f64, Option<TwoLobes>)> = match family {
+    let mut jobs: Vec<Job> = match family {
         Family::Merl => merl_materials()
             .map_err(err)?
             .into_iter()

@@ -179,9 +179,7 @@ fn ensembles_and_flip_averaging_are_one_standard_graph() {
     assert!((got - want).abs() < 1e-4 * want.max(1e-3), "{got} vs {want}");
     assert_eq!(flip.evaluations(), 4);
     // Weights::from_onnx refuses an ensemble rather than silently taking one member.
-    let err = Weights::from_onnx(&flip.to_onnx("x").expect("export"))
-        .err()
-        .expect("refused");
+    let err = Weights::from_onnx(&flip.to_onnx("x").expect("export")).expect_err("refused");
     assert!(err.to_string().contains("ensemble"), "{err}");
 }
 
@@ -239,5 +237,5 @@ fn two_lobe_datasets_are_labelled_by_the_ggx_fit() {
     assert_eq!(loaded.kind, ModelKind::Ggx);
     assert_eq!(loaded.samples, samples);
     let ward = dataset::generate_family(ModelKind::Ward, 1, dataset::Family::TwoLobes, 1, &dir.path().join("w"));
-    assert!(ward.err().expect("refused").to_string().contains("GGX"));
+    assert!(ward.expect_err("refused").to_string().contains("GGX"));
 }
