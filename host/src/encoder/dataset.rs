@@ -12,6 +12,8 @@
 //!   random colours with channels in [0.5, 1] (diffuse) and [0.8, 1] (specular).
 //! * MERL (`--merl`, GGX only): the 90 bundled neural fits, ground-truth alpha from `brdf::fit`
 //!   (GGX); every 6th material in name order is held out for test (15 materials, `split = test`).
+//! * Two lobes (`--two-lobes`, GGX only): Lambert + a sharp and a broad GGX lobe
+//!   (`sample_two_lobes`), labelled like MERL by the GGX fit: pretraining for the MERL labels.
 //!
 //! With the light intensity unknown, only ratios of reflectance are observable: Ward's rho_d is
 //! identifiable because rho_s = 1 - rho_d ties the specular-to-diffuse ratio to it; GGX's diffuse
@@ -19,9 +21,11 @@
 
 use super::{preprocess, EncoderError, ModelKind, CAPTURE_TOML, INPUT_LEN, INPUT_SIZE};
 use crate::brdf::fit::{fit, FitModel};
-use crate::brdf::parse_material;
+use crate::brdf::fit_lobes::TwoLobes;
 use crate::brdf::spec::Analytic;
+use crate::brdf::{parse_material, Material};
 use crate::render::{render_with, Image, Scene};
+use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -58,7 +62,18 @@ pub fn capture_scene(spec: &str, size: usize) -> Result<Scene, String> {
 
 /// The network-resolution linear photo of `spec` under the capture light times `intensity`.
 pub fn render_capture(spec: &str, intensity: f64) -> Result<Image, String> {
-    let scene = capture_scene(spec, RENDER_SIZE)?;
+    render_capture_scene(capture_scene(spec, RENDER_SIZE)?, intensity)
+}
+
+/// `render_capture` of a material that has no spec string (`TwoLobes`).
+pub fn render_capture_material(material: Box<dyn Material>, intensity: f64) -> Result<Image, String> {
+    let mut scene = capture_scene("lambert:albedo=0.5", RENDER_SIZE)?;
+    // A point light evaluates only the material (the BRDF sampler serves environment lighting).
+    scene.material = material;
+    render_capture_scene(scene, intensity)
+}
+
+fn render_capture_scene(scene: Scene, intensity: f64) -> Result<Image, String> {
     let full = render_with(&scene, &scene.settings, &|| {}).map_err(|e| e.to_string())?;
     let mut small = super::resample_square(&full, INPUT_SIZE);
     for p in &mut small.pixels {
@@ -94,6 +109,39 @@ pub fn sample_params(kind: ModelKind, rng: &mut ChaCha8Rng) -> (Vec<f64>, String
     }
 }
 
+/// Draw one synthetic two-lobe material (GGX pretraining beside the one-lobe family): Lambert plus
+/// a sharp and a broad GGX lobe, the shape of most MERL paints and plastics. sharp alpha
+/// log-uniform in [0.002, 0.5], broad alpha = sharp x log-uniform [2.5, 50] (at most 1); diffuse
+/// d log-uniform [0.003, 0.5], sharp and broad weights each log-uniform [0.02, 1]; tints as the
+/// one-lobe family's. Its label is what a MERL material's is: the alpha of `brdf::fit` (GGX).
+pub fn sample_two_lobes(rng: &mut ChaCha8Rng) -> TwoLobes {
+    let sharp_alpha = log_uniform(rng, 0.002, 0.5);
+    let broad_alpha = (sharp_alpha * log_uniform(rng, 2.5, 50.0)).min(1.0);
+    let d = log_uniform(rng, 0.003, 0.5);
+    let ks = log_uniform(rng, 0.02, 1.0);
+    let kb = log_uniform(rng, 0.02, 1.0);
+    let mut tint = |lo: f64| {
+        let [r, g, b] = [0; 3].map(|_| rng.random_range(lo..1.0));
+        DVec3::new(r, g, b)
+    };
+    let (td, ts, tb) = (tint(0.5), tint(0.8), tint(0.8));
+    TwoLobes {
+        diffuse: d * td,
+        sharp_alpha,
+        sharp: ks * ts,
+        broad_alpha,
+        broad: kb * tb,
+    }
+}
+
+/// The GGX alpha `brdf::fit` gives a material: the ground truth of MERL and two-lobe images.
+pub fn ggx_fit_alpha(material: &dyn Material) -> Result<f64, String> {
+    match fit(material, FitModel::Ggx).model {
+        Analytic::Ggx(g) => Ok(g.alpha),
+        other => Err(format!("the GGX fit gave {other:?}")),
+    }
+}
+
 /// The bundled MERL fits with their GGX alpha and split: (name, alpha, split).
 pub fn merl_materials() -> Result<Vec<(String, f64, &'static str)>, String> {
     let mut names: Vec<String> = crate::brdf::nbrdf::NeuralBrdf::bundled_names()
@@ -105,10 +153,7 @@ pub fn merl_materials() -> Result<Vec<(String, f64, &'static str)>, String> {
         .enumerate()
         .map(|(i, name)| {
             let material = parse_material(&format!("nbrdf:{name}")).map_err(|e| e.to_string())?;
-            let alpha = match fit(material.as_ref(), FitModel::Ggx).model {
-                Analytic::Ggx(g) => g.alpha,
-                other => return Err(format!("{name}: the GGX fit gave {other:?}")),
-            };
+            let alpha = ggx_fit_alpha(material.as_ref()).map_err(|e| format!("{name}: {e}"))?;
             let split = if i % MERL_TEST_EVERY == MERL_TEST_EVERY - 1 {
                 "test"
             } else {
@@ -119,34 +164,87 @@ pub fn merl_materials() -> Result<Vec<(String, f64, &'static str)>, String> {
         .collect()
 }
 
+/// One image to render: (spec, parameters, split, light intensity, the material when it has no spec).
+type Job = (String, Vec<f64>, String, f64, Option<TwoLobes>);
+
+/// Which materials a dataset draws.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Family {
+    /// `sample_params`: the model itself (Ward or one GGX lobe), exact labels.
+    Analytic,
+    /// The 90 bundled MERL fits, labelled by `brdf::fit` (GGX).
+    Merl,
+    /// `sample_two_lobes`, labelled by `brdf::fit` (GGX).
+    TwoLobes,
+}
+
 /// Render a dataset into `dir` (created if needed); `labels.csv` is written last, through a
 /// temporary name (`fsio`), so a folder with labels is complete.
 pub fn generate(kind: ModelKind, count: usize, merl: bool, seed: u64, dir: &Path) -> Result<Vec<Sample>, EncoderError> {
+    let family = if merl { Family::Merl } else { Family::Analytic };
+    generate_family(kind, count, family, seed, dir)
+}
+
+/// `generate` for any `Family` (`count` is ignored for MERL: one image per bundled material).
+pub fn generate_family(
+    kind: ModelKind,
+    count: usize,
+    family: Family,
+    seed: u64,
+    dir: &Path,
+) -> Result<Vec<Sample>, EncoderError> {
     let err = |e: String| EncoderError::dataset(dir, e);
-    if merl && kind != ModelKind::Ggx {
-        return Err(err("--merl renders GGX ground truth: use --model ggx".into()));
+    if family != Family::Analytic && kind != ModelKind::Ggx {
+        return Err(err(
+            "MERL and two-lobe images have GGX ground truth: use --model ggx".into()
+        ));
     }
     std::fs::create_dir_all(dir).map_err(|e| err(e.to_string()))?;
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    // (spec, params, split) of every image, drawn up front so the result does not depend on threads.
-    let jobs: Vec<(String, Vec<f64>, String, f64)> = if merl {
-        merl_materials()
+    // (spec, params, split, intensity, two-lobe material) of every image, drawn up front so the
+    // result does not depend on threads.
+    let mut jobs: Vec<Job> = match family {
+        Family::Merl => merl_materials()
             .map_err(err)?
             .into_iter()
             .map(|(name, alpha, split)| {
                 let i = log_uniform(&mut rng, INTENSITY_RANGE.0, INTENSITY_RANGE.1);
-                (format!("nbrdf:{name}"), vec![alpha], split.to_string(), i)
+                (format!("nbrdf:{name}"), vec![alpha], split.to_string(), i, None)
             })
-            .collect()
-    } else {
-        (0..count)
+            .collect(),
+        Family::Analytic => (0..count)
             .map(|_| {
                 let (params, spec) = sample_params(kind, &mut rng);
                 let i = log_uniform(&mut rng, INTENSITY_RANGE.0, INTENSITY_RANGE.1);
-                (spec, params, "all".to_string(), i)
+                (spec, params, "all".to_string(), i, None)
             })
-            .collect()
+            .collect(),
+        Family::TwoLobes => (0..count)
+            .map(|_| {
+                let lobes = sample_two_lobes(&mut rng);
+                let i = log_uniform(&mut rng, INTENSITY_RANGE.0, INTENSITY_RANGE.1);
+                (
+                    format!("twolobes: {}", lobes.describe()),
+                    Vec::new(),
+                    "all".to_string(),
+                    i,
+                    Some(lobes),
+                )
+            })
+            .collect(),
     };
+    if family == Family::TwoLobes {
+        let alphas: Vec<Result<f64, String>> = jobs
+            .par_iter()
+            .map(|j| match &j.4 {
+                Some(m) => ggx_fit_alpha(m),
+                None => Err("a two-lobe image without its material".into()),
+            })
+            .collect();
+        for (job, alpha) in jobs.iter_mut().zip(alphas) {
+            job.1 = vec![alpha.map_err(err)?];
+        }
+    }
     let bar = indicatif::ProgressBar::new(jobs.len() as u64);
     bar.set_style(
         indicatif::ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} ({eta})")
@@ -154,9 +252,13 @@ pub fn generate(kind: ModelKind, count: usize, merl: bool, seed: u64, dir: &Path
     );
     bar.set_message("rendering");
     let mut samples = Vec::with_capacity(jobs.len());
-    for (i, (spec, params, split, intensity)) in jobs.into_iter().enumerate() {
+    for (i, (spec, params, split, intensity, lobes)) in jobs.into_iter().enumerate() {
         let file = format!("{i:05}.exr");
-        let image = render_capture(&spec, intensity).map_err(err)?;
+        let image = match lobes {
+            Some(m) => render_capture_material(Box::new(m), intensity),
+            None => render_capture(&spec, intensity),
+        }
+        .map_err(err)?;
         image.write(&dir.join(&file)).map_err(|e| err(e.to_string()))?;
         samples.push(Sample {
             file,
@@ -223,6 +325,17 @@ impl Loaded {
 
     pub fn targets(&self) -> Vec<Vec<f64>> {
         self.samples.iter().map(|s| s.params.clone()).collect()
+    }
+
+    /// The rows whose index (in this set's order) `keep` accepts.
+    pub fn subset(&self, keep: &dyn Fn(usize) -> bool) -> Loaded {
+        let rows: Vec<usize> = (0..self.samples.len()).filter(|&i| keep(i)).collect();
+        Loaded {
+            kind: self.kind,
+            dir: self.dir.clone(),
+            samples: rows.iter().map(|&i| self.samples[i].clone()).collect(),
+            images: rows.iter().map(|&i| self.images[i].clone()).collect(),
+        }
     }
 }
 

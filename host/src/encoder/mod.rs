@@ -27,6 +27,8 @@ pub const INPUT_SIZE: usize = 64;
 pub const CHANNELS: usize = 3;
 /// Floats in one preprocessed image (CHW).
 pub const INPUT_LEN: usize = CHANNELS * INPUT_SIZE * INPUT_SIZE;
+/// The input convention in one line (the ONNX files' `gonio.input` metadata).
+pub const INPUT_DOC: &str = "1x3x64x64 linear RGB, divided by max(p90 luminance, 1e-4 max), then ln(1 + x)";
 
 /// The scene every training image is rendered from, and the photo convention users follow.
 pub const CAPTURE_TOML: &str = include_str!("../../../examples/capture.toml");

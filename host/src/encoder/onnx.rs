@@ -3,9 +3,11 @@
 //! from candle; `from_onnx` reads them back (fine-tuning starts from a pretrained file).
 //!
 //! Graph (Cao, Fig. 3): 5 x [Conv 3x3 (no bias) -> BatchNormalization -> Relu], GlobalAveragePool,
-//! Flatten, Gemm, Sigmoid, then the range mapping of `ModelKind::outputs`:
+//! Flatten, Gemm (the logits), Sigmoid, then the range mapping of `ModelKind::outputs`:
 //! params = (s * lin_scale + lin_off) * lin_mask + exp(s * log_scale + log_off) * log_mask,
 //! so the file outputs physical parameters and any ONNX runtime can use it without our code.
+//! A `Model` may hold several networks (an ensemble) and average their logits over the image and its
+//! vertical mirror (test-time augmentation) with standard ops (Gather, Mean) in the same one file.
 
 use super::{EncoderError, ModelKind, CHANNELS, INPUT_SIZE};
 use prost::Message;
@@ -131,76 +133,212 @@ impl Weights {
         Ok(())
     }
 
+    /// The ONNX file (opset 13) of this network alone (`Model::single`).
+    pub fn to_onnx(&self, doc: &str) -> Result<Vec<u8>, String> {
+        Model::single(self.clone()).to_onnx(doc)
+    }
+
+    /// Read the weights back from one of our single-network ONNX files (an ensemble is refused:
+    /// read it with `Model::from_onnx`).
+    pub fn from_onnx(bytes: &[u8]) -> Result<Self, EncoderError> {
+        let mut model = Model::from_onnx(bytes)?;
+        if model.members.len() != 1 || model.flip {
+            return Err(EncoderError::Model(format!(
+                "an ensemble of {} networks{}, not one network",
+                model.members.len(),
+                if model.flip { " with flip averaging" } else { "" }
+            )));
+        }
+        Ok(model.members.remove(0))
+    }
+}
+
+/// What one ONNX file computes: the logits of every member network on the image and, with `flip`,
+/// on its vertical mirror (the capture light lies in y = 0, so an isotropic sample's photo is
+/// symmetric top to bottom: the mirror is another view of the same material) are averaged with an
+/// ONNX `Mean`, then go through the sigmoid and the range map once. One member without flip is
+/// the plain network. Member j's initializers are named like the plain network's, prefixed with
+/// `m{j}.` for j >= 1, so a single-network file keeps the names of version 1 and 2.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Model {
+    pub members: Vec<Weights>,
+    pub flip: bool,
+}
+
+/// Metadata keys of the ensemble layout.
+pub const META_MEMBERS: &str = "gonio.members";
+pub const META_TTA: &str = "gonio.tta";
+
+/// The initializer prefix of member j.
+fn member_prefix(j: usize) -> String {
+    if j == 0 {
+        String::new()
+    } else {
+        format!("m{j}.")
+    }
+}
+
+impl Model {
+    pub fn single(w: Weights) -> Self {
+        Self {
+            members: vec![w],
+            flip: false,
+        }
+    }
+
+    pub fn kind(&self) -> Result<ModelKind, String> {
+        let kind = self.members.first().ok_or("a model needs at least one network")?.kind;
+        if self.members.iter().any(|m| m.kind != kind) {
+            return Err("the ensemble mixes Ward and GGX networks".into());
+        }
+        Ok(kind)
+    }
+
+    /// Network evaluations per image (members x views): the inference cost relative to one network.
+    pub fn evaluations(&self) -> usize {
+        self.members.len() * if self.flip { 2 } else { 1 }
+    }
+
     /// The ONNX file (opset 13), with `gonio.model` metadata naming the model kind.
     pub fn to_onnx(&self, doc: &str) -> Result<Vec<u8>, String> {
         use pb::tensor_shape_proto::dimension::Value as D;
-        self.check()?;
-        let k = self.kind.outputs().len();
+        let kind = self.kind()?;
+        for w in &self.members {
+            w.check()?;
+        }
+        let k = kind.outputs().len();
         let mut init = Vec::new();
         let mut nodes = Vec::new();
-        let mut x = INPUT_NAME.to_string();
-        for (i, (b, &(cin, cout, stride))) in self.blocks.iter().zip(&BLOCKS).enumerate() {
-            let p = format!("b{i}");
-            let names = [
-                format!("{p}.conv.weight"),
-                format!("{p}.bn.weight"),
-                format!("{p}.bn.bias"),
-                format!("{p}.bn.running_mean"),
-                format!("{p}.bn.running_var"),
-            ];
-            init.push(f32_tensor(&names[0], &[cout, cin, 3, 3], b.conv.clone()));
-            for (n, v) in names[1..].iter().zip([&b.bn_weight, &b.bn_bias, &b.bn_mean, &b.bn_var]) {
-                init.push(f32_tensor(n, &[cout], v.clone()));
+        for (j, w) in self.members.iter().enumerate() {
+            let m = member_prefix(j);
+            for (i, (b, &(cin, cout, _))) in w.blocks.iter().zip(&BLOCKS).enumerate() {
+                let p = format!("{m}b{i}");
+                init.push(f32_tensor(
+                    &format!("{p}.conv.weight"),
+                    &[cout, cin, 3, 3],
+                    b.conv.clone(),
+                ));
+                for (n, v) in ["weight", "bias", "running_mean", "running_var"].iter().zip([
+                    &b.bn_weight,
+                    &b.bn_bias,
+                    &b.bn_mean,
+                    &b.bn_var,
+                ]) {
+                    init.push(f32_tensor(&format!("{p}.bn.{n}"), &[cout], v.clone()));
+                }
             }
-            let s = stride as i64;
-            nodes.push(node(
-                "Conv",
-                &format!("{p}.conv"),
-                &[&x, &names[0]],
-                &format!("{p}.conv.out"),
-                vec![
-                    ints("kernel_shape", &[3, 3]),
-                    ints("pads", &[1, 1, 1, 1]),
-                    ints("strides", &[s, s]),
-                    ints("dilations", &[1, 1]),
-                    int("group", 1),
-                ],
+            init.push(f32_tensor(
+                &format!("{m}fc.weight"),
+                &[k, FEATURES],
+                w.fc_weight.clone(),
             ));
-            nodes.push(node(
-                "BatchNormalization",
-                &format!("{p}.bn"),
-                &[&format!("{p}.conv.out"), &names[1], &names[2], &names[3], &names[4]],
-                &format!("{p}.bn.out"),
-                vec![float("epsilon", BN_EPS as f32)],
-            ));
-            nodes.push(node(
-                "Relu",
-                &format!("{p}.relu"),
-                &[&format!("{p}.bn.out")],
-                &format!("{p}.out"),
-                vec![],
-            ));
-            x = format!("{p}.out");
+            init.push(f32_tensor(&format!("{m}fc.bias"), &[k], w.fc_bias.clone()));
         }
-        nodes.push(node("GlobalAveragePool", "pool", &[&x], "pool.out", vec![]));
-        nodes.push(node(
-            "Flatten",
-            "flatten",
-            &["pool.out"],
-            "features",
-            vec![int("axis", 1)],
-        ));
-        init.push(f32_tensor("fc.weight", &[k, FEATURES], self.fc_weight.clone()));
-        init.push(f32_tensor("fc.bias", &[k], self.fc_bias.clone()));
-        nodes.push(node(
-            "Gemm",
-            "fc",
-            &["features", "fc.weight", "fc.bias"],
-            "logits",
-            vec![int("transB", 1)],
-        ));
+        let mut views = vec![INPUT_NAME.to_string()];
+        if self.flip {
+            // Row r of the mirror is row (S - 1 - r) of the image: Gather on the height axis.
+            let rows: Vec<i64> = (0..INPUT_SIZE as i64).rev().collect();
+            init.push(pb::TensorProto {
+                name: "flip_rows".into(),
+                dims: vec![INPUT_SIZE as i64],
+                data_type: pb::tensor_proto::DataType::Int64 as i32,
+                int64_data: rows,
+                ..Default::default()
+            });
+            nodes.push(node(
+                "Gather",
+                "flip",
+                &[INPUT_NAME, "flip_rows"],
+                "image.flip",
+                vec![int("axis", 2)],
+            ));
+            views.push("image.flip".into());
+        }
+        let branches = self.members.len() * views.len();
+        let mut logits = Vec::new();
+        for j in 0..self.members.len() {
+            let m = member_prefix(j);
+            for (v, view) in views.iter().enumerate() {
+                // Node and value names: the plain network's when there is one branch.
+                let q = if branches == 1 {
+                    String::new()
+                } else {
+                    format!("m{j}v{v}.")
+                };
+                let mut x = view.clone();
+                for (i, &(_, _, stride)) in BLOCKS.iter().enumerate() {
+                    let p = format!("{m}b{i}");
+                    let o = format!("{q}b{i}");
+                    let s = stride as i64;
+                    nodes.push(node(
+                        "Conv",
+                        &format!("{o}.conv"),
+                        &[&x, &format!("{p}.conv.weight")],
+                        &format!("{o}.conv.out"),
+                        vec![
+                            ints("kernel_shape", &[3, 3]),
+                            ints("pads", &[1, 1, 1, 1]),
+                            ints("strides", &[s, s]),
+                            ints("dilations", &[1, 1]),
+                            int("group", 1),
+                        ],
+                    ));
+                    nodes.push(node(
+                        "BatchNormalization",
+                        &format!("{o}.bn"),
+                        &[
+                            &format!("{o}.conv.out"),
+                            &format!("{p}.bn.weight"),
+                            &format!("{p}.bn.bias"),
+                            &format!("{p}.bn.running_mean"),
+                            &format!("{p}.bn.running_var"),
+                        ],
+                        &format!("{o}.bn.out"),
+                        vec![float("epsilon", BN_EPS as f32)],
+                    ));
+                    nodes.push(node(
+                        "Relu",
+                        &format!("{o}.relu"),
+                        &[&format!("{o}.bn.out")],
+                        &format!("{o}.out"),
+                        vec![],
+                    ));
+                    x = format!("{o}.out");
+                }
+                nodes.push(node(
+                    "GlobalAveragePool",
+                    &format!("{q}pool"),
+                    &[&x],
+                    &format!("{q}pool.out"),
+                    vec![],
+                ));
+                nodes.push(node(
+                    "Flatten",
+                    &format!("{q}flatten"),
+                    &[&format!("{q}pool.out")],
+                    &format!("{q}features"),
+                    vec![int("axis", 1)],
+                ));
+                nodes.push(node(
+                    "Gemm",
+                    &format!("{q}fc"),
+                    &[
+                        &format!("{q}features"),
+                        &format!("{m}fc.weight"),
+                        &format!("{m}fc.bias"),
+                    ],
+                    &format!("{q}logits"),
+                    vec![int("transB", 1)],
+                ));
+                logits.push(format!("{q}logits"));
+            }
+        }
+        if branches > 1 {
+            let inputs: Vec<&str> = logits.iter().map(String::as_str).collect();
+            nodes.push(node("Mean", "mean", &inputs, "logits", vec![]));
+        }
         nodes.push(node("Sigmoid", "sigmoid", &["logits"], "unit", vec![]));
-        let m = RangeMap::of(self.kind);
+        let m = RangeMap::of(kind);
         for (name, v) in [
             ("lin_scale", m.lin_scale),
             ("lin_off", m.lin_off),
@@ -223,7 +361,7 @@ impl Weights {
         let batch = D::DimParam("batch".into());
         let s = INPUT_SIZE as i64;
         let graph = pb::GraphProto {
-            name: format!("gonio-encoder-{}", self.kind.name()),
+            name: format!("gonio-encoder-{}", kind.name()),
             node: nodes,
             initializer: init,
             input: vec![value_info(
@@ -238,7 +376,7 @@ impl Weights {
             output: vec![value_info(OUTPUT_NAME, &[batch, D::DimValue(k as i64)])],
             ..Default::default()
         };
-        let names: Vec<&str> = self.kind.outputs().iter().map(|p| p.name).collect();
+        let names: Vec<&str> = kind.outputs().iter().map(|p| p.name).collect();
         let meta = |k: &str, v: String| pb::StringStringEntryProto {
             key: k.into(),
             value: v,
@@ -255,29 +393,46 @@ impl Weights {
             doc_string: doc.into(),
             graph: Some(graph),
             metadata_props: vec![
-                meta(super::infer::META_MODEL, self.kind.name().into()),
+                meta(super::infer::META_MODEL, kind.name().into()),
                 meta("gonio.outputs", names.join(",")),
-                meta(
-                    "gonio.input",
-                    "1x3x64x64 linear RGB, divided by max(p90 luminance, 1e-4 max), then ln(1 + x)".into(),
-                ),
+                meta("gonio.input", super::INPUT_DOC.into()),
+                meta(META_MEMBERS, self.members.len().to_string()),
+                meta(META_TTA, if self.flip { "flip" } else { "none" }.into()),
             ],
             ..Default::default()
         };
         Ok(model.encode_to_vec())
     }
 
-    /// Read the weights back from one of our ONNX files (by initializer name).
+    /// Read the networks back from one of our ONNX files (by initializer name). Files without the
+    /// ensemble metadata (versions 1 and 2) are one network without flip.
     pub fn from_onnx(bytes: &[u8]) -> Result<Self, EncoderError> {
         let bad = |s: String| EncoderError::Model(s);
         let proto = pb::ModelProto::decode(bytes).map_err(|e| bad(format!("not an ONNX file ({e})")))?;
-        let kind = proto
-            .metadata_props
-            .iter()
-            .find(|p| p.key == super::infer::META_MODEL)
-            .and_then(|p| ModelKind::from_name(&p.value))
+        let meta = |key: &str| {
+            proto
+                .metadata_props
+                .iter()
+                .find(|p| p.key == key)
+                .map(|p| p.value.as_str())
+        };
+        let kind = meta(super::infer::META_MODEL)
+            .and_then(ModelKind::from_name)
             .ok_or_else(|| bad("not a gonio encoder (no gonio.model metadata)".into()))?;
-        let graph = proto.graph.ok_or_else(|| bad("no graph".into()))?;
+        let members = match meta(META_MEMBERS) {
+            None => 1,
+            Some(v) => v
+                .parse::<usize>()
+                .ok()
+                .filter(|&n| (1..=64).contains(&n))
+                .ok_or_else(|| bad(format!("bad {META_MEMBERS} metadata '{v}'")))?,
+        };
+        let flip = match meta(META_TTA) {
+            None | Some("none") => false,
+            Some("flip") => true,
+            Some(other) => return Err(bad(format!("unknown {META_TTA} metadata '{other}'"))),
+        };
+        let graph = proto.graph.as_ref().ok_or_else(|| bad("no graph".into()))?;
         let get = |name: &str| -> Result<Vec<f32>, EncoderError> {
             let t = graph
                 .initializer
@@ -293,25 +448,30 @@ impl Weights {
                     .collect())
             }
         };
-        let mut blocks = Vec::new();
-        for i in 0..BLOCKS.len() {
-            let p = format!("b{i}");
-            blocks.push(Block {
-                conv: get(&format!("{p}.conv.weight"))?,
-                bn_weight: get(&format!("{p}.bn.weight"))?,
-                bn_bias: get(&format!("{p}.bn.bias"))?,
-                bn_mean: get(&format!("{p}.bn.running_mean"))?,
-                bn_var: get(&format!("{p}.bn.running_var"))?,
-            });
+        let mut nets = Vec::with_capacity(members);
+        for j in 0..members {
+            let m = member_prefix(j);
+            let mut blocks = Vec::new();
+            for i in 0..BLOCKS.len() {
+                let p = format!("{m}b{i}");
+                blocks.push(Block {
+                    conv: get(&format!("{p}.conv.weight"))?,
+                    bn_weight: get(&format!("{p}.bn.weight"))?,
+                    bn_bias: get(&format!("{p}.bn.bias"))?,
+                    bn_mean: get(&format!("{p}.bn.running_mean"))?,
+                    bn_var: get(&format!("{p}.bn.running_var"))?,
+                });
+            }
+            let w = Weights {
+                kind,
+                blocks,
+                fc_weight: get(&format!("{m}fc.weight"))?,
+                fc_bias: get(&format!("{m}fc.bias"))?,
+            };
+            w.check().map_err(bad)?;
+            nets.push(w);
         }
-        let w = Weights {
-            kind,
-            blocks,
-            fc_weight: get("fc.weight")?,
-            fc_bias: get("fc.bias")?,
-        };
-        w.check().map_err(bad)?;
-        Ok(w)
+        Ok(Self { members: nets, flip })
     }
 }
 

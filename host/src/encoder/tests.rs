@@ -1,4 +1,4 @@
-use super::onnx::{Block, Weights, BLOCKS, FEATURES};
+use super::onnx::{Block, Model, Weights, BLOCKS, FEATURES};
 use super::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -130,6 +130,60 @@ fn onnx_export_round_trips_and_runs_in_tract() {
 }
 
 #[test]
+fn ensembles_and_flip_averaging_are_one_standard_graph() {
+    let (a, b) = (random_weights(ModelKind::Ggx, 21), random_weights(ModelKind::Ggx, 22));
+    let input = preprocess(&sphere_photo("ggx:alpha=0.3,diffuse=0.2/0.1/0.05")).expect("preprocess");
+    // An asymmetric input, so that a network and its mirror really differ.
+    let ramp: Vec<f32> = (0..INPUT_LEN).map(|i| (i % 97) as f32 / 97.0).collect();
+    let run = |m: &Model, x: &[f32]| {
+        let bytes = m.to_onnx("test").expect("export");
+        assert_eq!(&Model::from_onnx(&bytes).expect("read back"), m);
+        infer::Encoder::from_bytes(&bytes)
+            .expect("tract loads it")
+            .run(x)
+            .expect("run")[0]
+    };
+    let single = Model::single(a.clone());
+    // A file of versions 1 and 2 (one network, no ensemble metadata) reads as one network.
+    assert_eq!(
+        Model::from_onnx(&a.to_onnx("v2").expect("export")).expect("read"),
+        single
+    );
+    // Two copies of one network are that network.
+    let twice = Model {
+        members: vec![a.clone(), a.clone()],
+        flip: false,
+    };
+    assert!((run(&twice, &ramp) - run(&single, &ramp)).abs() < 1e-5);
+    // Flip averaging makes the output the same for the input and its mirror; a single network
+    // on this input is not.
+    let flip = Model {
+        members: vec![a.clone(), b.clone()],
+        flip: true,
+    };
+    let mirrored = flip_vertical(&ramp);
+    assert!((run(&flip, &ramp) - run(&flip, &mirrored)).abs() < 1e-5);
+    assert!((run(&single, &ramp) - run(&single, &mirrored)).abs() > 1e-4);
+    // The mean is over logits: sigmoid(mean of the four branches' logits), mapped to alpha.
+    let r = ModelKind::Ggx.outputs()[0];
+    let logit = |w: &Weights, x: &[f32]| {
+        let s = run(&Model::single(w.clone()), x) as f64;
+        let u = r.to_unit(s);
+        (u / (1.0 - u)).ln()
+    };
+    let mean =
+        (logit(&a, &input) + logit(&a, &flip_vertical(&input)) + logit(&b, &input) + logit(&b, &flip_vertical(&input)))
+            / 4.0;
+    let want = r.from_unit(1.0 / (1.0 + (-mean).exp()));
+    let got = run(&flip, &input) as f64;
+    assert!((got - want).abs() < 1e-4 * want.max(1e-3), "{got} vs {want}");
+    assert_eq!(flip.evaluations(), 4);
+    // Weights::from_onnx refuses an ensemble rather than silently taking one member.
+    let err = Weights::from_onnx(&flip.to_onnx("x").expect("export")).expect_err("refused");
+    assert!(err.to_string().contains("ensemble"), "{err}");
+}
+
+#[test]
 fn bad_model_bytes_are_clear_errors() {
     let err = infer::Encoder::from_bytes(b"not a model").err().expect("rejected");
     assert!(err.to_string().contains("ONNX"), "{err}");
@@ -159,4 +213,29 @@ fn datasets_are_written_and_read_back() {
     }
     let missing = dataset::load(&dir.path().join("nope"), &|_| true).err().expect("error");
     assert!(missing.to_string().contains("labels.csv"), "{missing}");
+}
+
+#[test]
+fn two_lobe_datasets_are_labelled_by_the_ggx_fit() {
+    // The label of a material that is one GGX lobe is that lobe's alpha: the fit recovers it.
+    let one = crate::brdf::parse_material("ggx:alpha=0.12,diffuse=0.1/0.1/0.1").expect("spec");
+    let a = dataset::ggx_fit_alpha(one.as_ref()).expect("fit");
+    assert!((a - 0.12).abs() < 0.005, "fit alpha {a}");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let samples =
+        dataset::generate_family(ModelKind::Ggx, 3, dataset::Family::TwoLobes, 9, dir.path()).expect("generate");
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    for s in &samples {
+        // The same draws as the generator: material, then intensity.
+        let lobes = dataset::sample_two_lobes(&mut rng);
+        let _intensity: f64 = rng.random();
+        assert!(lobes.sharp_alpha < lobes.broad_alpha && lobes.broad_alpha <= 1.0);
+        assert_eq!(s.spec, format!("twolobes: {}", lobes.describe()));
+        assert_eq!(s.params, vec![dataset::ggx_fit_alpha(&lobes).expect("fit")]);
+    }
+    let loaded = dataset::load(dir.path(), &|_| true).expect("load");
+    assert_eq!(loaded.kind, ModelKind::Ggx);
+    assert_eq!(loaded.samples, samples);
+    let ward = dataset::generate_family(ModelKind::Ward, 1, dataset::Family::TwoLobes, 1, &dir.path().join("w"));
+    assert!(ward.expect_err("refused").to_string().contains("GGX"));
 }

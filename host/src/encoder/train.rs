@@ -4,7 +4,7 @@
 //! count reproduces the same model.
 
 use super::dataset::{self, Loaded};
-use super::onnx::{Block, RangeMap, Weights, BLOCKS, BN_EPS, FEATURES};
+use super::onnx::{Block, Model, RangeMap, Weights, BLOCKS, BN_EPS, FEATURES};
 use super::{flip_vertical, preprocess, EncoderError, ModelKind, INPUT_LEN, INPUT_SIZE};
 use candle_core::{DType, Device, Tensor, Var, D};
 use candle_nn::{BatchNorm, Conv2d, Conv2dConfig, Linear, ModuleT, Optimizer, VarBuilder, VarMap};
@@ -59,14 +59,19 @@ impl Net {
         Ok(Self { kind, blocks, fc, map })
     }
 
-    /// Sigmoid outputs (N, k) of inputs (N, 3, 64, 64).
-    pub fn unit(&self, x: &Tensor, train: bool) -> candle_core::Result<Tensor> {
+    /// Logits (N, k), before the sigmoid, of inputs (N, 3, 64, 64).
+    pub fn logits(&self, x: &Tensor, train: bool) -> candle_core::Result<Tensor> {
         let mut x = x.clone();
         for (conv, bn) in &self.blocks {
             x = bn.forward_t(&conv.forward_t(&x, train)?, train)?.relu()?;
         }
         let pooled = x.mean(D::Minus1)?.mean(D::Minus1)?;
-        candle_nn::ops::sigmoid(&self.fc.forward_t(&pooled, train)?)
+        self.fc.forward_t(&pooled, train)
+    }
+
+    /// Sigmoid outputs (N, k) of inputs (N, 3, 64, 64).
+    pub fn unit(&self, x: &Tensor, train: bool) -> candle_core::Result<Tensor> {
+        candle_nn::ops::sigmoid(&self.logits(x, train)?)
     }
 
     /// Physical parameters (N, k): the same mapping as the ONNX graph.
@@ -79,18 +84,7 @@ impl Net {
 
     /// Inference-mode parameters of preprocessed inputs (INPUT_LEN floats each), in chunks.
     pub fn predict(&self, inputs: &[f32]) -> Result<Vec<Vec<f32>>, EncoderError> {
-        let mut out = Vec::new();
-        for chunk in inputs.chunks(256 * INPUT_LEN) {
-            let n = chunk.len() / INPUT_LEN;
-            let x = Tensor::from_slice(chunk, (n, 3, INPUT_SIZE, INPUT_SIZE), &Device::Cpu).map_err(ce)?;
-            let p = self
-                .unit(&x, false)
-                .and_then(|s| self.params_of_unit(&s))
-                .and_then(|p| p.to_vec2::<f32>())
-                .map_err(ce)?;
-            out.extend(p);
-        }
-        Ok(out)
+        predict_ensemble(std::slice::from_ref(self), false, inputs)
     }
 
     /// The weights as plain arrays (batch-norm running statistics from the layers themselves:
@@ -121,6 +115,42 @@ impl Net {
             fc_bias: v(fc_bias)?,
         })
     }
+}
+
+/// Inference-mode parameters of an ensemble, as its ONNX graph computes them (`onnx::Model`): the
+/// logits of every net on every view (the input, and with `flip` its vertical mirror) averaged,
+/// then the sigmoid and the range map.
+pub fn predict_ensemble(nets: &[Net], flip: bool, inputs: &[f32]) -> Result<Vec<Vec<f32>>, EncoderError> {
+    let first = nets
+        .first()
+        .ok_or_else(|| EncoderError::Model("an ensemble needs at least one network".into()))?;
+    let mut out = Vec::new();
+    for chunk in inputs.chunks(256 * INPUT_LEN) {
+        let n = chunk.len() / INPUT_LEN;
+        let mut views = vec![chunk.to_vec()];
+        if flip {
+            views.push(chunk.chunks(INPUT_LEN).flat_map(flip_vertical).collect());
+        }
+        let p = (|| -> candle_core::Result<Vec<Vec<f32>>> {
+            let mut sum: Option<Tensor> = None;
+            for view in &views {
+                let x = Tensor::from_slice(view, (n, 3, INPUT_SIZE, INPUT_SIZE), &Device::Cpu)?;
+                for net in nets {
+                    let l = net.logits(&x, false)?;
+                    sum = Some(match sum {
+                        Some(s) => (s + l)?,
+                        None => l,
+                    });
+                }
+            }
+            let count = (views.len() * nets.len()) as f64;
+            let mean = (sum.ok_or_else(|| candle_core::Error::Msg("no branches".into()))? / count)?;
+            first.params_of_unit(&candle_nn::ops::sigmoid(&mean)?)?.to_vec2::<f32>()
+        })()
+        .map_err(ce)?;
+        out.extend(p);
+    }
+    Ok(out)
 }
 
 /// Fill a VarMap with `weights`, or with a seeded Kaiming-normal initialisation when `None`.
@@ -193,10 +223,33 @@ pub struct TrainConfig {
     /// Stop after this many optimiser steps (tests); `None` = all epochs.
     pub max_steps: Option<usize>,
     /// Probability that a training image is shown as an 8-bit PNG auto-exposed at x1 and then lit
-    /// by a factor log-uniform in `PNG_AUGMENT_RANGE` (`report::photo`, `Photo::Png8`): brighter
+    /// by a factor log-uniform in `png_range` (`report::photo`, `Photo::Png8`): brighter
     /// light clips the highlight as a camera would, so the network learns to read clipped photos.
     /// 0 = linear images only.
     pub png_augment: f64,
+    /// Light factors of the clipped-PNG augmentation (default `PNG_AUGMENT_RANGE`).
+    pub png_range: (f64, f64),
+    /// Weight of the range-scaled absolute error in the loss (the unit-space error, relative for
+    /// the log-mapped alpha, always has weight 1). 1 = versions 1 and 2.
+    pub phys_weight: f64,
+    /// Images of the `mix` dataset added to every batch (rehearsal while fine-tuning); 0 = none.
+    pub mix_per_batch: usize,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            epochs: 30,
+            batch: 32,
+            lr: 3e-3,
+            seed: 1,
+            max_steps: None,
+            png_augment: 0.0,
+            png_range: PNG_AUGMENT_RANGE,
+            phys_weight: 1.0,
+            mix_per_batch: 0,
+        }
+    }
 }
 
 /// Light factors of the clipped-PNG augmentation (the x0.25 .. x4).
@@ -217,16 +270,31 @@ pub fn train(
     val: Option<&Loaded>,
     log: &mut dyn FnMut(&str),
 ) -> Result<(Net, TrainLog), EncoderError> {
+    train_mixed(data, None, init, cfg, val, log)
+}
+
+/// `train`, with `cfg.mix_per_batch` random images of `mix` (same model kind) added to every batch.
+pub fn train_mixed(
+    data: &Loaded,
+    mix: Option<&Loaded>,
+    init: Option<&Weights>,
+    cfg: &TrainConfig,
+    val: Option<&Loaded>,
+    log: &mut dyn FnMut(&str),
+) -> Result<(Net, TrainLog), EncoderError> {
     let kind = data.kind;
-    if let Some(v) = val {
-        if v.kind != kind {
-            return Err(EncoderError::Model(format!(
-                "the validation data are {}, the training data {}",
-                v.kind.name(),
-                kind.name()
-            )));
+    for (what, other) in [("validation", val), ("mix", mix)] {
+        if let Some(v) = other {
+            if v.kind != kind {
+                return Err(EncoderError::Model(format!(
+                    "the {what} data are {}, the training data {}",
+                    v.kind.name(),
+                    kind.name()
+                )));
+            }
         }
     }
+    let mix = mix.filter(|_| cfg.mix_per_batch > 0);
     let varmap = init_varmap(kind, init, cfg.seed)?;
     let net = Net::new(kind, &varmap)?;
     let trainable: Vec<Var> = {
@@ -250,6 +318,10 @@ pub fn train(
     .map_err(ce)?;
 
     let inputs = data.inputs(1.0)?;
+    let mix_inputs = match mix {
+        Some(m) => m.inputs(1.0)?,
+        None => Vec::new(),
+    };
     let targets = data.targets();
     let n = targets.len();
     let outputs = kind.outputs();
@@ -259,6 +331,7 @@ pub fn train(
         .flat_map(|t| t.iter().zip(outputs).map(|(v, r)| r.to_unit(*v) as f32))
         .collect();
     let phys_targets: Vec<f32> = targets.iter().flat_map(|t| t.iter().map(|&v| v as f32)).collect();
+    let mix_targets = mix.map(|m| m.targets()).unwrap_or_default();
     // Absolute errors are weighed by the width of each range, so rho_d and alpha count alike.
     let widths: Vec<f32> = outputs.iter().map(|r| (r.hi - r.lo) as f32).collect();
     let dev = Device::Cpu;
@@ -290,15 +363,26 @@ pub fn train(
             let mut xb = Vec::with_capacity(idx.len() * INPUT_LEN);
             let mut ub = Vec::with_capacity(idx.len() * k);
             let mut pb = Vec::with_capacity(idx.len() * k);
-            for &i in idx {
+            // (dataset, row) of every image of the batch: the epoch's rows, then the rehearsal draws.
+            let mut rows: Vec<(bool, usize)> = idx.iter().map(|&i| (false, i)).collect();
+            if let Some(m) = mix {
+                for _ in 0..cfg.mix_per_batch {
+                    rows.push((true, rng.random_range(0..m.samples.len())));
+                }
+            }
+            for &(from_mix, i) in &rows {
+                let (set, set_inputs) = match mix {
+                    Some(m) if from_mix => (m, &mix_inputs),
+                    _ => (data, &inputs),
+                };
                 let augmented;
-                let mut x = &inputs[i * INPUT_LEN..(i + 1) * INPUT_LEN];
+                let mut x = &set_inputs[i * INPUT_LEN..(i + 1) * INPUT_LEN];
                 if cfg.png_augment > 0.0 && rng.random::<f64>() < cfg.png_augment {
-                    let (lo, hi) = PNG_AUGMENT_RANGE;
+                    let (lo, hi) = cfg.png_range;
                     let light = lo * (hi / lo).powf(rng.random::<f64>());
-                    let png = super::report::photo(&data.images[i], light, super::report::Photo::Png8);
-                    augmented = preprocess(&png)
-                        .map_err(|e| EncoderError::dataset(&data.dir.join(&data.samples[i].file), e))?;
+                    let png = super::report::photo(&set.images[i], light, super::report::Photo::Png8);
+                    augmented =
+                        preprocess(&png).map_err(|e| EncoderError::dataset(&set.dir.join(&set.samples[i].file), e))?;
                     x = &augmented;
                 }
                 if rng.random::<bool>() {
@@ -306,10 +390,16 @@ pub fn train(
                 } else {
                     xb.extend_from_slice(x);
                 }
-                ub.extend_from_slice(&unit_targets[i * k..(i + 1) * k]);
-                pb.extend_from_slice(&phys_targets[i * k..(i + 1) * k]);
+                if from_mix {
+                    let t = &mix_targets[i];
+                    ub.extend(t.iter().zip(outputs).map(|(v, r)| r.to_unit(*v) as f32));
+                    pb.extend(t.iter().map(|&v| v as f32));
+                } else {
+                    ub.extend_from_slice(&unit_targets[i * k..(i + 1) * k]);
+                    pb.extend_from_slice(&phys_targets[i * k..(i + 1) * k]);
+                }
             }
-            let b = idx.len();
+            let b = rows.len();
             let loss = (|| -> candle_core::Result<Tensor> {
                 let x = Tensor::from_vec(xb, (b, 3, INPUT_SIZE, INPUT_SIZE), &dev)?;
                 let u = Tensor::from_vec(ub, (b, k), &dev)?;
@@ -319,7 +409,7 @@ pub fn train(
                 // Unit-space error (relative for the log-mapped alpha) + range-scaled absolute error.
                 let l_unit = (&s - &u)?.abs()?.mean_all()?;
                 let l_phys = (&phys - &p)?.abs()?.broadcast_mul(&inv_w)?.mean_all()?;
-                l_unit + l_phys
+                l_unit + (l_phys * cfg.phys_weight)?
             })()
             .map_err(ce)?;
             opt.backward_step(&loss).map_err(ce)?;
@@ -359,6 +449,193 @@ pub fn train(
             images: seen,
         },
     ))
+}
+
+/// Train an ensemble: member j with seed `cfg.seed + j`, from member j (mod their number) of
+/// `init`; the model averages the members' logits, over the image and its mirror with `flip`.
+/// Returns the model, the candle networks (same order) and the summed log.
+#[allow(clippy::too_many_arguments)]
+pub fn train_model(
+    data: &Loaded,
+    mix: Option<&Loaded>,
+    init: Option<&Model>,
+    cfg: &TrainConfig,
+    members: usize,
+    flip: bool,
+    val: Option<&Loaded>,
+    log: &mut dyn FnMut(&str),
+) -> Result<(Model, Vec<Net>, TrainLog), EncoderError> {
+    if members == 0 {
+        return Err(EncoderError::Model("an ensemble needs at least one network".into()));
+    }
+    let mut nets = Vec::new();
+    let mut weights = Vec::new();
+    let mut total = TrainLog {
+        step_losses: Vec::new(),
+        seconds: 0.0,
+        images: 0,
+    };
+    for j in 0..members {
+        let c = TrainConfig {
+            seed: cfg.seed + j as u64,
+            ..cfg.clone()
+        };
+        let start = init.map(|m| &m.members[j % m.members.len()]);
+        if members > 1 {
+            log(&format!("member {} of {members} (seed {})", j + 1, c.seed));
+        }
+        let (net, l) = train_mixed(data, mix, start, &c, val, log)?;
+        weights.push(net.weights()?);
+        nets.push(net);
+        total.step_losses.extend(l.step_losses);
+        total.seconds += l.seconds;
+        total.images += l.images;
+    }
+    Ok((Model { members: weights, flip }, nets, total))
+}
+
+/// One held-out row of a cross-validation: its predictions through the exported ONNX model (tract).
+#[derive(Clone, Debug)]
+pub struct CvRow {
+    pub fold: usize,
+    pub file: String,
+    pub spec: String,
+    pub truth: Vec<f64>,
+    /// Linear photo (any light: the input is normalised).
+    pub linear: Vec<f64>,
+    /// 8-bit PNG auto-exposed at x1, then lit x0.5, x1 and x2 (`report::Photo::Png8`).
+    pub png: [Vec<f64>; 3],
+}
+
+/// The PNG light factors of `CvRow::png`.
+pub const CV_PNG_LIGHTS: [f64; 3] = [0.5, 1.0, 2.0];
+
+/// K-fold cross-validation over the training rows of `data`: row i (in dataset order) is in fold
+/// i mod `folds`; each fold (or only `only`) is trained on the other folds with `train_model` and
+/// its rows predicted through the exported ONNX file, as `gonio encoder-report` would.
+#[allow(clippy::too_many_arguments)]
+pub fn cross_validate(
+    data: &Loaded,
+    mix: Option<&Loaded>,
+    init: Option<&Model>,
+    cfg: &TrainConfig,
+    members: usize,
+    flip: bool,
+    folds: usize,
+    only: Option<usize>,
+    log: &mut dyn FnMut(&str),
+) -> Result<(Vec<CvRow>, TrainLog), EncoderError> {
+    use super::report::{predict, Photo};
+    if folds < 2 || folds > data.samples.len() {
+        return Err(EncoderError::Model(format!(
+            "{folds} folds of {} images: need 2 <= folds <= images",
+            data.samples.len()
+        )));
+    }
+    if only.is_some_and(|f| f >= folds) {
+        return Err(EncoderError::Model(format!(
+            "fold {only:?} of {folds}: folds count from 0"
+        )));
+    }
+    let mut rows = Vec::new();
+    let mut total = TrainLog {
+        step_losses: Vec::new(),
+        seconds: 0.0,
+        images: 0,
+    };
+    for fold in (0..folds).filter(|f| only.is_none_or(|o| o == *f)) {
+        let train_part = data.subset(&|i| i % folds != fold);
+        let held = data.subset(&|i| i % folds == fold);
+        log(&format!(
+            "fold {fold} of {folds}: training on {}, validating on {}",
+            train_part.samples.len(),
+            held.samples.len()
+        ));
+        let (model, _, l) = train_model(&train_part, mix, init, cfg, members, flip, None, log)?;
+        total.seconds += l.seconds;
+        total.images += l.images;
+        let bytes = model.to_onnx("cross-validation").map_err(EncoderError::Model)?;
+        let encoder = super::infer::Encoder::from_bytes(&bytes)?;
+        let linear = predict(&encoder, &held, 1.0, Photo::Linear)?;
+        let png: Vec<Vec<Vec<f64>>> = CV_PNG_LIGHTS
+            .iter()
+            .map(|&light| predict(&encoder, &held, light, Photo::Png8))
+            .collect::<Result<_, _>>()?;
+        for (i, s) in held.samples.iter().enumerate() {
+            rows.push(CvRow {
+                fold,
+                file: s.file.clone(),
+                spec: s.spec.clone(),
+                truth: s.params.clone(),
+                linear: linear[i].clone(),
+                png: [png[0][i].clone(), png[1][i].clone(), png[2][i].clone()],
+            });
+        }
+    }
+    Ok((rows, total))
+}
+
+/// Threshold of the MERL goal (every |alpha error| <= 0.05), counted in the cross-validation summary.
+pub const CV_MISS: f64 = 0.05;
+
+/// The printable summary of a cross-validation: per output the linear MAE, max |err| and the count
+/// above `CV_MISS`; the 8-bit PNG MAE at x1 and its change at x0.5 and x2; the misses by name.
+pub fn cv_summary(kind: ModelKind, rows: &[CvRow]) -> Vec<String> {
+    let n = rows.len().max(1) as f64;
+    let mut lines = vec![format!("cross-validation: {} held-out images", rows.len())];
+    lines.push(format!(
+        "{:<8} {:>9} {:>9} {:>7}   {:>9} {:>9} {:>9}",
+        "param", "MAE", "max |err|", ">0.05", "PNG x1", "x0.5 chg", "x2 chg"
+    ));
+    for (j, r) in kind.outputs().iter().enumerate() {
+        let err =
+            |p: &dyn Fn(&CvRow) -> f64| -> Vec<f64> { rows.iter().map(|row| (p(row) - row.truth[j]).abs()).collect() };
+        let lin = err(&|row| row.linear[j]);
+        let png: Vec<f64> = (0..3)
+            .map(|v| err(&|row| row.png[v][j]).iter().sum::<f64>() / n)
+            .collect();
+        lines.push(format!(
+            "{:<8} {:>9.4} {:>9.4} {:>7}   {:>9.4} {:>+9.4} {:>+9.4}",
+            r.name,
+            lin.iter().sum::<f64>() / n,
+            lin.iter().copied().fold(0.0, f64::max),
+            lin.iter().filter(|&&e| e > CV_MISS).count(),
+            png[1],
+            png[0] - png[1],
+            png[2] - png[1]
+        ));
+    }
+    let j = kind.outputs().len() - 1;
+    for row in rows.iter().filter(|row| (row.linear[j] - row.truth[j]).abs() > CV_MISS) {
+        lines.push(format!(
+            "  miss (fold {}): {} {} true {:.3} -> {:.3}",
+            row.fold, row.file, row.spec, row.truth[j], row.linear[j]
+        ));
+    }
+    lines
+}
+
+/// The cross-validation rows as CSV: fold, file, spec, then per output true, linear and PNG values.
+pub fn cv_csv(kind: ModelKind, rows: &[CvRow]) -> String {
+    let mut cols = Vec::new();
+    for r in kind.outputs() {
+        for c in ["true", "linear", "png05", "png1", "png2"] {
+            cols.push(format!("{c}_{}", r.name));
+        }
+    }
+    let mut text = format!("fold,file,spec,{}\n", cols.join(","));
+    for row in rows {
+        let mut vals = Vec::new();
+        for j in 0..row.truth.len() {
+            vals.push(row.truth[j].to_string());
+            vals.push(row.linear[j].to_string());
+            for v in &row.png {
+                vals.push(v[j].to_string());
+            }
+        }
+        text += &format!("{},{},\"{}\",{}\n", row.fold, row.file, row.spec, vals.join(","));
+    }
+    text
 }
 
 /// Mean absolute error per output of `net` on `data` (candle, inference mode).
