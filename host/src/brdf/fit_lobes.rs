@@ -82,9 +82,11 @@ impl Material for TwoLobes {
             return DVec3::ZERO;
         }
         let x = schlick_weight(wi, wo);
+        // ks + (kg - ks) x, not ks (1 - x) + kg x: a lobe without rise (kg = ks) then evaluates to
+        // exactly ks, bit for bit as before the rise existed (the encoder's two-lobe dataset).
         self.diffuse * FRAC_1_PI
-            + (self.sharp * (1.0 - x) + self.sharp_grazing * x) * ggx_specular(wi, wo, self.sharp_alpha)
-            + (self.broad * (1.0 - x) + self.broad_grazing * x) * ggx_specular(wi, wo, self.broad_alpha)
+            + (self.sharp + (self.sharp_grazing - self.sharp) * x) * ggx_specular(wi, wo, self.sharp_alpha)
+            + (self.broad + (self.broad_grazing - self.broad) * x) * ggx_specular(wi, wo, self.broad_alpha)
     }
 }
 

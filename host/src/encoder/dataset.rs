@@ -131,6 +131,9 @@ pub fn sample_two_lobes(rng: &mut ChaCha8Rng) -> TwoLobes {
         sharp: ks * ts,
         broad_alpha,
         broad: kb * tb,
+        // No Fresnel rise: the family the shipped models were trained on.
+        sharp_grazing: ks * ts,
+        broad_grazing: kb * tb,
     }
 }
 
