@@ -433,16 +433,9 @@ mod tests {
             sharp_grazing: DVec3::splat(0.3),
             broad_grazing: DVec3::new(0.5, 0.2, 0.1),
         };
-        let pairs = fit_directions();
-        let values: Vec<DVec3> = pairs.iter().map(|&(wi, wo)| truth.eval(wi, wo)).collect();
-        let fit = fit_two_lobes(&pairs, &values, &vec![1.0; pairs.len()], 0.0);
+        let fit = fit_unfloored(&truth);
         let m = &fit.model;
-        assert_eq!(
-            (m.sharp_alpha, m.broad_alpha),
-            (truth.sharp_alpha, truth.broad_alpha),
-            "{}",
-            m.describe()
-        );
+        assert_same_roughness(m, &truth);
         for (got, want) in [
             (m.diffuse, truth.diffuse),
             (m.sharp, truth.sharp),
@@ -458,8 +451,7 @@ mod tests {
             diffuse: DVec3::splat(0.2),
             specular: DVec3::splat(0.6),
         };
-        let values: Vec<DVec3> = pairs.iter().map(|&(wi, wo)| one.eval(wi, wo)).collect();
-        let fit = fit_two_lobes(&pairs, &values, &vec![1.0; pairs.len()], 0.0);
+        let fit = fit_unfloored(&one);
         assert!(
             fit.rms_log_error < 1e-6,
             "{} {}",
@@ -472,7 +464,6 @@ mod tests {
     /// never above (every fitted lobe keeps ks <= kg <= ks / F0_MIN).
     #[test]
     fn fresnel_rise_is_recovered_inside_its_bound_and_capped_beyond_it() {
-        let pairs = fit_directions();
         let lobes = |sharp_rise: f64| TwoLobes {
             diffuse: DVec3::splat(0.1),
             sharp_alpha: alpha_grid(5),
@@ -483,15 +474,9 @@ mod tests {
             broad_grazing: DVec3::splat(0.2 * 3.0),
         };
         let truth = lobes(10.0);
-        let values: Vec<DVec3> = pairs.iter().map(|&(wi, wo)| truth.eval(wi, wo)).collect();
-        let fit = fit_two_lobes(&pairs, &values, &vec![1.0; pairs.len()], 0.0);
+        let fit = fit_unfloored(&truth);
         let m = &fit.model;
-        assert_eq!(
-            (m.sharp_alpha, m.broad_alpha),
-            (truth.sharp_alpha, truth.broad_alpha),
-            "{}",
-            m.describe()
-        );
+        assert_same_roughness(m, &truth);
         for (got, want) in [
             (m.sharp, truth.sharp),
             (m.sharp_grazing, truth.sharp_grazing),
@@ -505,9 +490,7 @@ mod tests {
             );
         }
         // A rise of 200x is beyond the bound (1 / F0_MIN = 50x): the fit stays inside it.
-        let truth = lobes(200.0);
-        let values: Vec<DVec3> = pairs.iter().map(|&(wi, wo)| truth.eval(wi, wo)).collect();
-        let fit = fit_two_lobes(&pairs, &values, &vec![1.0; pairs.len()], 0.0);
+        let fit = fit_unfloored(&lobes(200.0));
         let m = &fit.model;
         for (ks, kg) in [(m.sharp, m.sharp_grazing), (m.broad, m.broad_grazing)] {
             for c in 0..3 {
@@ -613,6 +596,22 @@ mod tests {
         let a = [[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 2.0]];
         let x = nnls(&a, &[2.0, 2.0, 2.0]);
         assert!((x[0] + x[1] - 2.0).abs() < 1e-12 && (x[2] - 1.0).abs() < 1e-12, "{x:?}");
+    }
+
+    /// `fit_two_lobes` of `truth` sampled on the documented direction set, equal weights, no floor.
+    fn fit_unfloored(truth: &dyn Material) -> TwoLobeFit {
+        let pairs = fit_directions();
+        let values: Vec<DVec3> = pairs.iter().map(|&(wi, wo)| truth.eval(wi, wo)).collect();
+        fit_two_lobes(&pairs, &values, &vec![1.0; pairs.len()], 0.0)
+    }
+
+    fn assert_same_roughness(m: &TwoLobes, truth: &TwoLobes) {
+        assert_eq!(
+            (m.sharp_alpha, m.broad_alpha),
+            (truth.sharp_alpha, truth.broad_alpha),
+            "{}",
+            m.describe()
+        );
     }
 
     fn alpha_grid(i: usize) -> f64 {
