@@ -261,7 +261,7 @@ const AT_PEAK_TAN: f64 = 1e-3;
 pub fn resolvable_alpha(pairs: &[(DVec3, DVec3)]) -> f64 {
     let mut nearest: Vec<(DVec3, f64)> = Vec::new();
     for &(wi, wo) in pairs {
-        if !(wi.z > 0.0 && wo.z > 0.0) || !wi.is_finite() || !wo.is_finite() {
+        if !(wi.z > 0.0 && wo.z > 0.0 && wi.is_finite() && wo.is_finite()) {
             continue;
         }
         // Guard: wi = -wo has no half vector; excluded by the z > 0 test above.
