@@ -170,7 +170,14 @@ pub fn fit_two_lobes_with(
         .iter()
         .map(|&(wi, wo)| 1.0 + rise * schlick_weight(wi, wo))
         .collect();
-    let with_fresnel = |b: &[f64]| -> Vec<f64> { b.iter().zip(&fresnel_cols).map(|(v, f)| v * f).collect() };
+    // Each roughness's Fresnel-rising column, built once (empty when the rise is off).
+    let rising: Vec<Vec<f64>> = match fresnel {
+        LobeFresnel::Bounded => basis
+            .iter()
+            .map(|b| b.iter().zip(&fresnel_cols).map(|(v, f)| v * f).collect())
+            .collect(),
+        LobeFresnel::None => Vec::new(),
+    };
     let to_colours = |c0: f64, c1: f64| -> (f64, f64) { (c0 + c1, c0 + c1 / F0_MIN) };
     let mut best: Option<(f64, usize, usize, [[f64; 5]; 3])> = None;
     // Guard: a non-finite floor is no floor; one above the grid leaves only the roughest pair.
@@ -191,14 +198,16 @@ pub fn fit_two_lobes_with(
             // coeffs[c] = [kd, ks_sharp, kg_sharp, ks_broad, kg_broad].
             let mut coeffs = [[0.0; 5]; 3];
             let mut loss = 0.0;
-            let (sf, bf) = match fresnel {
-                LobeFresnel::Bounded => (with_fresnel(&basis[s]), with_fresnel(&basis[b])),
-                LobeFresnel::None => (Vec::new(), Vec::new()),
-            };
             for c in 0..3 {
                 let (x, l) = match fresnel {
                     LobeFresnel::Bounded => {
-                        let cols = [&diffuse[..], &basis[s][..], &sf[..], &basis[b][..], &bf[..]];
+                        let cols = [
+                            &diffuse[..],
+                            &basis[s][..],
+                            &rising[s][..],
+                            &basis[b][..],
+                            &rising[b][..],
+                        ];
                         let (x, l) = solve_channel(&cols, &target[c], &w);
                         let (ks, kg) = to_colours(x[1], x[2]);
                         let (bs, bg) = to_colours(x[3], x[4]);
@@ -264,8 +273,9 @@ pub fn resolvable_alpha(pairs: &[(DVec3, DVec3)]) -> f64 {
         if !(wi.z > 0.0 && wo.z > 0.0 && wi.is_finite() && wo.is_finite()) {
             continue;
         }
-        // Guard: wi = -wo has no half vector; excluded by the z > 0 test above.
-        let h = (wi.normalize() + wo.normalize()).normalize();
+        let Some(h) = crate::brdf::frame::half_vector(wi, wo) else {
+            continue;
+        };
         let tan = (1.0 - h.z * h.z).max(0.0).sqrt() / h.z;
         if !(tan >= AT_PEAK_TAN) {
             continue;
