@@ -84,7 +84,7 @@ fn png_augmentation_feeds_clipped_photos_and_still_trains() {
 #[test]
 fn an_ensemble_with_flip_averaging_exports_what_candle_computes() {
     use gonio::encoder::onnx::Model;
-    use gonio::encoder::train::{predict_ensemble, train_model};
+    use gonio::encoder::train::{predict_ensemble, train_model, Recipe};
     let dir = tempfile::tempdir().expect("tempdir");
     dataset::generate(ModelKind::Ggx, 6, false, 13, dir.path()).expect("dataset");
     let data = dataset::load(dir.path(), &|_| true).expect("load");
@@ -93,7 +93,12 @@ fn an_ensemble_with_flip_averaging_exports_what_candle_computes() {
         max_steps: Some(3),
         ..TrainConfig::default()
     };
-    let (model, nets, _) = train_model(&data, None, None, &cfg, 2, true, None, &mut |_| {}).expect("train");
+    let recipe = Recipe {
+        members: 2,
+        flip: true,
+        ..Recipe::single(&cfg)
+    };
+    let (model, nets, _) = train_model(&data, &recipe, None, &mut |_| {}).expect("train");
     assert_eq!(nets.len(), 2);
     assert_ne!(model.members[0], model.members[1], "members have their own seeds");
     let bytes = model.to_onnx("ensemble").expect("export");
@@ -116,7 +121,7 @@ fn an_ensemble_with_flip_averaging_exports_what_candle_computes() {
 
 #[test]
 fn cross_validation_predicts_every_row_from_a_model_that_never_saw_it() {
-    use gonio::encoder::train::{cross_validate, cv_csv, cv_summary};
+    use gonio::encoder::train::{cross_validate, cv_csv, cv_summary, Recipe};
     let dir = tempfile::tempdir().expect("tempdir");
     dataset::generate(ModelKind::Ggx, 6, false, 17, dir.path()).expect("dataset");
     let data = dataset::load(dir.path(), &|_| true).expect("load");
@@ -125,7 +130,7 @@ fn cross_validation_predicts_every_row_from_a_model_that_never_saw_it() {
         max_steps: Some(2),
         ..TrainConfig::default()
     };
-    let (rows, _) = cross_validate(&data, None, None, &cfg, 1, false, 3, None, &mut |_| {}).expect("cv");
+    let (rows, _) = cross_validate(&data, &Recipe::single(&cfg), 3, None, &mut |_| {}).expect("cv");
     assert_eq!(rows.len(), 6, "every row is held out once");
     for row in &rows {
         let i = data
@@ -138,7 +143,7 @@ fn cross_validation_predicts_every_row_from_a_model_that_never_saw_it() {
         assert!(row.linear[0].is_finite() && row.png.iter().all(|p| p[0].is_finite()));
     }
     // A model trained on folds 1 and 2 only predicts fold 0 as the cross-validation did.
-    let (only, _) = cross_validate(&data, None, None, &cfg, 1, false, 3, Some(0), &mut |_| {}).expect("cv");
+    let (only, _) = cross_validate(&data, &Recipe::single(&cfg), 3, Some(0), &mut |_| {}).expect("cv");
     assert_eq!(only.len(), 2);
     for (a, b) in only.iter().zip(rows.iter().filter(|r| r.fold == 0)) {
         assert_eq!(a.file, b.file);
@@ -149,6 +154,6 @@ fn cross_validation_predicts_every_row_from_a_model_that_never_saw_it() {
     }
     assert!(cv_summary(ModelKind::Ggx, &rows)[0].contains("6 held-out"));
     assert_eq!(cv_csv(ModelKind::Ggx, &rows).lines().count(), 7);
-    assert!(cross_validate(&data, None, None, &cfg, 1, false, 1, None, &mut |_| {}).is_err());
-    assert!(cross_validate(&data, None, None, &cfg, 1, false, 3, Some(3), &mut |_| {}).is_err());
+    assert!(cross_validate(&data, &Recipe::single(&cfg), 1, None, &mut |_| {}).is_err());
+    assert!(cross_validate(&data, &Recipe::single(&cfg), 3, Some(3), &mut |_| {}).is_err());
 }

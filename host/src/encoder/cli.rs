@@ -215,18 +215,15 @@ pub fn run_train(args: TrainArgs) -> Result<()> {
         mix_per_batch: if mix.is_some() { args.mix_per_batch } else { 0 },
     };
     let mut print = |l: &str| println!("{l}");
+    let recipe = train::Recipe {
+        mix: mix.as_ref(),
+        init: init.as_ref(),
+        cfg: &cfg,
+        members: args.members,
+        flip: args.tta_flip,
+    };
     if let Some(folds) = args.cv {
-        let (rows, log) = train::cross_validate(
-            &data,
-            mix.as_ref(),
-            init.as_ref(),
-            &cfg,
-            args.members,
-            args.tta_flip,
-            folds,
-            args.cv_fold,
-            &mut print,
-        )?;
+        let (rows, log) = train::cross_validate(&data, &recipe, folds, args.cv_fold, &mut print)?;
         for l in train::cv_summary(data.kind, &rows) {
             println!("{l}");
         }
@@ -244,16 +241,7 @@ pub fn run_train(args: TrainArgs) -> Result<()> {
         return Ok(());
     }
     let output = args.output.as_ref().context("-o MODEL.onnx")?;
-    let (model, _, log) = train::train_model(
-        &data,
-        mix.as_ref(),
-        init.as_ref(),
-        &cfg,
-        args.members,
-        args.tta_flip,
-        val.as_ref(),
-        &mut print,
-    )?;
+    let (model, _, log) = train::train_model(&data, &recipe, val.as_ref(), &mut print)?;
     let mut options = format!(
         "epochs {}, batch {}, lr {}, seed {}, png-augment {}",
         args.epochs, args.batch, args.lr, args.seed, args.png_augment

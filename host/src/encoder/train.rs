@@ -451,20 +451,49 @@ pub fn train_mixed(
     ))
 }
 
+/// How to train a model, whatever it is trained on: what `train_model` and `cross_validate` share.
+#[derive(Clone, Copy)]
+pub struct Recipe<'a> {
+    /// Images mixed into every batch (`TrainConfig::mix_per_batch` of them), if any.
+    pub mix: Option<&'a Loaded>,
+    /// Weights to start from; member j starts from member j (mod their number).
+    pub init: Option<&'a Model>,
+    pub cfg: &'a TrainConfig,
+    /// Networks in the ensemble (member j trains with seed `cfg.seed + j`).
+    pub members: usize,
+    /// Average each member over the image and its mirror.
+    pub flip: bool,
+}
+
+impl<'a> Recipe<'a> {
+    /// One network from scratch, no mixing, no flip.
+    pub fn single(cfg: &'a TrainConfig) -> Self {
+        Self {
+            mix: None,
+            init: None,
+            cfg,
+            members: 1,
+            flip: false,
+        }
+    }
+}
+
 /// Train an ensemble: member j with seed `cfg.seed + j`, from member j (mod their number) of
 /// `init`; the model averages the members' logits, over the image and its mirror with `flip`.
 /// Returns the model, the candle networks (same order) and the summed log.
-#[allow(clippy::too_many_arguments)]
 pub fn train_model(
     data: &Loaded,
-    mix: Option<&Loaded>,
-    init: Option<&Model>,
-    cfg: &TrainConfig,
-    members: usize,
-    flip: bool,
+    recipe: &Recipe,
     val: Option<&Loaded>,
     log: &mut dyn FnMut(&str),
 ) -> Result<(Model, Vec<Net>, TrainLog), EncoderError> {
+    let Recipe {
+        mix,
+        init,
+        cfg,
+        members,
+        flip,
+    } = *recipe;
     if members == 0 {
         return Err(EncoderError::Model("an ensemble needs at least one network".into()));
     }
@@ -513,14 +542,9 @@ pub const CV_PNG_LIGHTS: [f64; 3] = [0.5, 1.0, 2.0];
 /// K-fold cross-validation over the training rows of `data`: row i (in dataset order) is in fold
 /// i mod `folds`; each fold (or only `only`) is trained on the other folds with `train_model` and
 /// its rows predicted through the exported ONNX file, as `gonio encoder-report` would.
-#[allow(clippy::too_many_arguments)]
 pub fn cross_validate(
     data: &Loaded,
-    mix: Option<&Loaded>,
-    init: Option<&Model>,
-    cfg: &TrainConfig,
-    members: usize,
-    flip: bool,
+    recipe: &Recipe,
     folds: usize,
     only: Option<usize>,
     log: &mut dyn FnMut(&str),
@@ -551,7 +575,7 @@ pub fn cross_validate(
             train_part.samples.len(),
             held.samples.len()
         ));
-        let (model, _, l) = train_model(&train_part, mix, init, cfg, members, flip, None, log)?;
+        let (model, _, l) = train_model(&train_part, recipe, None, log)?;
         total.seconds += l.seconds;
         total.images += l.images;
         let bytes = model.to_onnx("cross-validation").map_err(EncoderError::Model)?;
