@@ -36,7 +36,18 @@ pub enum BrdfCmd {
         material: String,
         #[arg(long, value_enum)]
         model: ModelArg,
+        /// Which direction pairs the fit sees: `hemisphere`, the documented set of `brdf::fit` (the
+        /// encoder's MERL labels), or `capture`, one pair per lit pixel of the 64 x 64 capture photo
+        /// (`examples/capture.toml`): what the encoder's photo can show of the material.
+        #[arg(long, value_enum, default_value = "hemisphere")]
+        directions: FitDirections,
     },
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FitDirections {
+    Hemisphere,
+    Capture,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug)]
@@ -98,13 +109,22 @@ pub fn run(cmd: BrdfCmd) -> Result<()> {
             println!("wrote {} ({} bytes)", output.display(), super::merl::FILE_BYTES);
             Ok(())
         }
-        BrdfCmd::Fit { material, model } => {
+        BrdfCmd::Fit {
+            material,
+            model,
+            directions,
+        } => {
             let m = parse_material(&material)?;
             let model = match model {
                 ModelArg::Ggx => FitModel::Ggx,
                 ModelArg::Ward => FitModel::Ward,
             };
-            let r = fit(m.as_ref(), model);
+            let r = match directions {
+                FitDirections::Hemisphere => fit(m.as_ref(), model),
+                FitDirections::Capture => {
+                    crate::encoder::observable::observable_fit(m.as_ref(), model).map_err(anyhow::Error::msg)?
+                }
+            };
             println!("{}", r.model.to_spec());
             println!(
                 "rms log(1 + f cos) residual {:.5} over {} direction pairs",
@@ -146,6 +166,7 @@ mod tests {
         let err = run(BrdfCmd::Fit {
             material: "ggx:alpha=x".into(),
             model: ModelArg::Ggx,
+            directions: FitDirections::Capture,
         })
         .err()
         .map(|e| format!("{e:#}"));

@@ -119,6 +119,10 @@ pub struct ReportArgs {
     /// Plot predicted against true alpha (PNG), like the paper's Fig. 5.
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// Also fit GGX to the directions the capture photo itself sees (`encoder::observable`) and
+    /// print, per image, how far the label lies from what the photo shows (GGX datasets).
+    #[arg(long)]
+    pub observable: bool,
 }
 
 fn load_encoder(model: ModelKind, file: Option<&Path>) -> Result<Encoder> {
@@ -317,9 +321,24 @@ pub fn run_report(args: ReportArgs) -> Result<()> {
     for l in &rep.lines {
         println!("{l}");
     }
+    let observable = if args.observable {
+        if encoder.kind != ModelKind::Ggx {
+            bail!("--observable compares GGX alphas: use --model ggx");
+        }
+        let alphas = report::observable_alphas(&rep.rows)?;
+        for l in report::observable_lines(&rep.rows, &alphas) {
+            println!("{l}");
+        }
+        Some(alphas)
+    } else {
+        None
+    };
     if let Some(path) = &args.csv {
-        crate::fsio::write_bytes_atomically(path, report::csv(encoder.kind, &rep.rows).as_bytes())
-            .with_context(|| format!("{}", path.display()))?;
+        crate::fsio::write_bytes_atomically(
+            path,
+            report::csv(encoder.kind, &rep.rows, observable.as_deref()).as_bytes(),
+        )
+        .with_context(|| format!("{}", path.display()))?;
         println!("wrote {}", path.display());
     }
     if let Some(path) = &args.plot {

@@ -5,12 +5,14 @@
 //! * `infer`: the only place that touches tract (ONNX inference);
 //! * `onnx`: the ONNX graph writer (opset 13), from plain weight arrays;
 //! * `dataset`: `gonio dataset`, synthetic renders of `examples/capture.toml` and the MERL fits;
+//! * `observable`: what a capture photo shows of a BRDF, and the GGX alpha that alone supports;
 //! * `report`: accuracy tables, the intensity sweep and the predicted-vs-true plot;
 //! * `train` (cargo feature `train`): the candle network, training loop and export.
 
 pub mod cli;
 pub mod dataset;
 pub mod infer;
+pub mod observable;
 pub mod onnx;
 pub mod report;
 #[cfg(feature = "train")]

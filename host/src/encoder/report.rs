@@ -142,23 +142,92 @@ pub fn report(encoder: &Encoder, data: &Loaded, mode: Photo) -> Result<Report, E
     Ok(Report { lines, rows })
 }
 
-/// The per-image CSV: file, spec, then true and predicted values of each output.
-pub fn csv(kind: super::ModelKind, rows: &[(String, String, Vec<f64>, Vec<f64>)]) -> String {
-    let names: Vec<String> = kind
+/// The per-image CSV: file, spec, then true and predicted values of each output, then (when given)
+/// the observable alpha of each row (`observable_alphas`).
+pub fn csv(
+    kind: super::ModelKind,
+    rows: &[(String, String, Vec<f64>, Vec<f64>)],
+    observable: Option<&[f64]>,
+) -> String {
+    let mut names: Vec<String> = kind
         .outputs()
         .iter()
         .flat_map(|r| [format!("true_{}", r.name), format!("pred_{}", r.name)])
         .collect();
+    if observable.is_some() {
+        names.push("observable_alpha".into());
+    }
     let mut text = format!("file,spec,{}\n", names.join(","));
-    for (file, spec, t, p) in rows {
-        let vals: Vec<String> = t
+    for (i, (file, spec, t, p)) in rows.iter().enumerate() {
+        let mut vals: Vec<String> = t
             .iter()
             .zip(p)
             .flat_map(|(a, b)| [a.to_string(), b.to_string()])
             .collect();
+        if let Some(obs) = observable {
+            vals.push(obs[i].to_string());
+        }
         text += &format!("{file},\"{spec}\",{}\n", vals.join(","));
     }
     text
+}
+
+/// The label's distance from what the photo shows, per row: the alpha of a GGX fit to the capture
+/// photo's own direction pairs (`observable::observable_alpha`) of each row's material.
+pub fn observable_alphas(rows: &[(String, String, Vec<f64>, Vec<f64>)]) -> Result<Vec<f64>, EncoderError> {
+    use rayon::prelude::*;
+    rows.par_iter()
+        .map(|(file, spec, _, _)| {
+            let material = crate::brdf::spec::parse_material(spec)
+                .map_err(|e| EncoderError::Model(format!("{file}: material {spec}: {e}")))?;
+            super::observable::observable_alpha(material.as_ref())
+                .map_err(|e| EncoderError::Model(format!("{file}: {e}")))
+        })
+        .collect()
+}
+
+/// Where the photo cannot tell the label: a table of label, observable and predicted alpha per row,
+/// and the counts beside the goal's 0.05.
+pub fn observable_lines(rows: &[(String, String, Vec<f64>, Vec<f64>)], observable: &[f64]) -> Vec<String> {
+    const GOAL: f64 = 0.05;
+    let mut lines = vec![
+        String::new(),
+        "what the photo shows: alpha of a GGX fit to the capture photo's own directions (theta_d ~ 15 deg)".into(),
+        format!(
+            "{:<34} {:>7} {:>10} {:>9} {:>12} {:>12}",
+            "material", "label", "observable", "predicted", "|obs-label|", "|pred-label|"
+        ),
+    ];
+    let (mut apart, mut missed, mut missed_apart) = (0, 0, 0);
+    let (mut to_label, mut to_obs) = (0.0, 0.0);
+    for ((_, spec, t, p), &o) in rows.iter().zip(observable) {
+        let (label, pred) = (t[t.len() - 1], p[p.len() - 1]);
+        let far = (o - label).abs() > GOAL;
+        let miss = (pred - label).abs() > GOAL;
+        apart += far as usize;
+        missed += miss as usize;
+        missed_apart += (far && miss) as usize;
+        to_label += (pred - label).abs();
+        to_obs += (pred - o).abs();
+        lines.push(format!(
+            "{:<34} {label:>7.3} {o:>10.3} {pred:>9.3} {:>12.3} {:>12.3}{}",
+            spec.trim_start_matches("nbrdf:"),
+            (o - label).abs(),
+            (pred - label).abs(),
+            if miss { "  miss" } else { "" }
+        ));
+    }
+    let n = rows.len().max(1) as f64;
+    lines.push(format!(
+        "|observable - label| > {GOAL}: {apart} of {}; predictions missing the label by > {GOAL}: {missed}, {missed_apart} of them where the observable fit is apart too",
+        rows.len()
+    ));
+    lines.push(format!(
+        "mean |predicted - label| {:.4}, mean |predicted - observable| {:.4}",
+        to_label / n,
+        to_obs / n
+    ));
+    lines
 }
 
 /// Predicted against true alpha (the last output of both models), with the y = x line.

@@ -239,3 +239,47 @@ fn two_lobe_datasets_are_labelled_by_the_ggx_fit() {
     let ward = dataset::generate_family(ModelKind::Ward, 1, dataset::Family::TwoLobes, 1, &dir.path().join("w"));
     assert!(ward.expect_err("refused").to_string().contains("GGX"));
 }
+
+#[test]
+fn the_observable_report_counts_labels_the_photo_cannot_show() {
+    // A GGX lobe is observed as itself: label and observable agree, so a prediction 0.1 off is a
+    // miss of the network, not a label the photo cannot show.
+    let rows = vec![
+        (
+            "a.exr".to_string(),
+            "ggx:alpha=0.1,diffuse=0.1".to_string(),
+            vec![0.1],
+            vec![0.2],
+        ),
+        (
+            "b.exr".to_string(),
+            "ggx:alpha=0.3,diffuse=0.1".to_string(),
+            vec![0.3],
+            vec![0.31],
+        ),
+    ];
+    let alphas = report::observable_alphas(&rows).expect("observable fits");
+    assert!(
+        (alphas[0] - 0.1).abs() < 0.005 && (alphas[1] - 0.3).abs() < 0.015,
+        "{alphas:?}"
+    );
+    let lines = report::observable_lines(&rows, &alphas);
+    let summary = lines
+        .iter()
+        .find(|l| l.starts_with("|observable - label|"))
+        .expect("summary line");
+    assert!(
+        summary.contains(": 0 of 2;") && summary.contains("by > 0.05: 1, 0 of them"),
+        "{summary}"
+    );
+    assert!(lines
+        .iter()
+        .any(|l| l.starts_with("ggx:alpha=0.1,") && l.ends_with("miss")));
+    assert!(lines
+        .iter()
+        .any(|l| l.starts_with("ggx:alpha=0.3,") && !l.ends_with("miss")));
+    // A spec that is no material is a clear error, not a panic.
+    let bad = vec![("c.exr".to_string(), "twolobes: x".to_string(), vec![0.1], vec![0.1])];
+    let err = report::observable_alphas(&bad).expect_err("refused").to_string();
+    assert!(err.contains("c.exr"), "{err}");
+}
