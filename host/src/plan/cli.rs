@@ -127,6 +127,10 @@ pub struct TradeoffArgs {
     /// Environment samples per pixel.
     #[arg(long, default_value_t = 64)]
     pub env_spp: u32,
+    /// Also write DIR/renders/MATERIAL.png per material: the truth's renders on the first row, then one
+    /// row per strategy with each level's point-light render, then each level's environment render.
+    #[arg(long)]
+    pub renders: bool,
     #[arg(short, long)]
     pub output: PathBuf,
 }
@@ -386,6 +390,7 @@ pub fn run_tradeoff(args: TradeoffArgs) -> Result<()> {
     }
     cfg.env_size = args.env_size;
     cfg.env_spp = args.env_spp;
+    cfg.renders = args.renders;
     for (name, v) in [("--size", cfg.size), ("--env-size", cfg.env_size)] {
         if !(16..=1024).contains(&v) {
             bail!("{name} {v} must be in 16..=1024");

@@ -24,7 +24,7 @@ use crate::encoder::infer::Encoder;
 use crate::encoder::ModelKind;
 use crate::plot::{Chart, Mark, Series};
 use crate::render::render_with;
-use crate::render::Scene;
+use crate::render::{Image, Scene};
 use gonio_shared::instrument::InstrumentConfig;
 use std::fmt::{self, Write};
 use std::path::Path;
@@ -186,6 +186,9 @@ pub struct TradeoffConfig {
     /// What every strategy's reconstruction interpolates on top of (the same for all, so the
     /// comparison is of where the directions go).
     pub prior: super::Prior,
+    /// Also write `renders/<material>.png`: every reconstruction's point-light and environment
+    /// renders beside the truth's (`render_sheet`).
+    pub renders: bool,
 }
 
 impl Default for TradeoffConfig {
@@ -204,6 +207,7 @@ impl Default for TradeoffConfig {
             lookup: super::Lookup::Query,
             interp: super::Interp::Log,
             prior: super::Prior::TwoLobes,
+            renders: false,
         }
     }
 }
@@ -361,12 +365,17 @@ pub fn run(
     }
     std::fs::create_dir_all(dir).map_err(|e| PlanError::Invalid(format!("{}: {e}", dir.display())))?;
     let mut rows: Vec<TradeRow> = Vec::new();
+    let mut sheets: Vec<(String, Vec<u8>, usize, usize)> = Vec::new();
     for (spec, truth, true_est, photo) in &inputs {
         let truth_img = scorer.render(parse_material(spec)?);
         let truth_env = scorer
             .render_env(parse_material(spec)?, spec)
             .ok_or_else(|| PlanError::Invalid("no environment scene".into()))?;
+        // One sheet row per strategy: its levels' point-light renders, then their environment renders.
+        let mut sheet_rows: Vec<Vec<Image>> = Vec::new();
         for &strategy in &cfg.strategies {
+            let mut sheet_row: Vec<Image> = Vec::new();
+            let mut sheet_env: Vec<Image> = Vec::new();
             let (estimate, estimate_seconds) = match (strategy.uses_photo(), photo) {
                 (true, Some((e, s))) => (e, *s),
                 (false, _) => (&true_est.0, true_est.1),
@@ -388,11 +397,16 @@ pub fn run(
             for l in &plan.levels {
                 let grid = plan.reconstruct(l.level, &measured)?;
                 let log_err = scorer.log_err(truth.as_ref(), &grid);
-                let point = score(&truth_img, &scorer.render(Box::new(grid.clone())))?;
+                let point_img = scorer.render(Box::new(grid.clone()));
+                let point = score(&truth_img, &point_img)?;
                 let env_img = scorer
                     .render_env(Box::new(grid), spec)
                     .ok_or_else(|| PlanError::Invalid("no environment scene".into()))?;
                 let env = score(&truth_env, &env_img)?;
+                if cfg.renders {
+                    sheet_row.push(point_img);
+                    sheet_env.push(env_img);
+                }
                 let paper_psnr_env = if cfg.paper { paper_psnr(spec, (l.n, l.m)) } else { None };
                 rows.push(TradeRow {
                     material: spec.clone(),
@@ -429,6 +443,12 @@ pub fn run(
                     log_err
                 ));
             }
+            sheet_row.append(&mut sheet_env);
+            sheet_rows.push(sheet_row);
+        }
+        if cfg.renders {
+            let (w, h, rgb) = render_sheet(&truth_img, &truth_env, &sheet_rows);
+            sheets.push((format!("renders/{}.png", file_stem(spec)), rgb, w, h));
         }
     }
     let md = markdown(cfg, &rows);
@@ -440,7 +460,64 @@ pub fn run(
         .map_err(|e| PlanError::Invalid(format!("{}: {e}", png.display())))?;
     write(dir, "tradeoff.csv", &table)?;
     write(dir, "tradeoff.md", md.as_bytes())?;
+    if !sheets.is_empty() {
+        let renders = dir.join("renders");
+        std::fs::create_dir_all(&renders).map_err(|e| PlanError::Invalid(format!("{}: {e}", renders.display())))?;
+    }
+    for (name, rgb, w, h) in sheets {
+        let path = dir.join(&name);
+        crate::render::image::write_rgb8_png(&path, w, h, rgb)
+            .map_err(|e| PlanError::Invalid(format!("{}: {e}", path.display())))?;
+    }
     Ok(md)
+}
+
+/// A material spec as a file name: letters, digits, '-' and '.' kept, anything else '_'.
+fn file_stem(spec: &str) -> String {
+    short(spec)
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '.' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}
+
+/// The renders of one material as one sRGB sheet: row 0 is the truth (point light, then environment),
+/// each further row one strategy, its levels' point-light renders coarsest first, then their
+/// environment renders in the same order (the order of `strategies` and of the levels in the csv).
+/// Each point-light panel is as large as the truth's; environment panels are scaled to that size
+/// (nearest pixel) so one sheet holds both.
+pub fn render_sheet(truth: &Image, truth_env: &Image, rows: &[Vec<Image>]) -> (usize, usize, Vec<u8>) {
+    let (w, h) = (truth.width, truth.height);
+    let blank = vec![255u8; w * h * 3];
+    let fit = |img: &Image| -> Vec<u8> {
+        // Guard: an empty render (none is made; sizes are checked at the CLI) stays a blank panel.
+        if img.width == 0 || img.height == 0 {
+            return blank.clone();
+        }
+        let mut out = Image::new(w, h);
+        for y in 0..h {
+            for x in 0..w {
+                // Nearest pixel: environment renders may be another size than the point-light ones.
+                let (sx, sy) = (x * img.width / w.max(1), y * img.height / h.max(1));
+                out.pixels[y * w + x] = img.get(sx.min(img.width - 1), sy.min(img.height - 1));
+            }
+        }
+        out.to_srgb8()
+    };
+    let cols = rows.iter().map(Vec::len).max().unwrap_or(0).max(2);
+    let mut panels = vec![fit(truth), fit(truth_env)];
+    panels.resize(cols, blank.clone());
+    for row in rows {
+        let mut p: Vec<Vec<u8>> = row.iter().map(fit).collect();
+        p.resize(cols, blank.clone());
+        panels.extend(p);
+    }
+    tile(&panels, w, h, cols)
 }
 
 /// The command that regenerates this run.
@@ -455,6 +532,14 @@ fn command(cfg: &TradeoffConfig) -> String {
                 let _ = write!(c, " --material {m}");
             }
         }
+    }
+    if cfg.strategies != ALL_STRATEGIES {
+        for st in &cfg.strategies {
+            let _ = write!(c, " --strategy {st}");
+        }
+    }
+    if cfg.renders {
+        c += " --renders";
     }
     let grids: Vec<String> = cfg.grids.iter().map(|(n, m)| format!("{n}x{m}")).collect();
     let _ = write!(
@@ -863,6 +948,43 @@ mod tests {
             paper: true,
             ..TradeoffConfig::preset(Preset::Table1)
         }
+    }
+
+    #[test]
+    fn render_sheets_hold_the_truth_and_every_strategy_and_level() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = TradeoffConfig {
+            materials: vec!["ggx:alpha=0.04,diffuse=0.3,specular=1".into()],
+            grids: vec![(2, 2), (4, 4)],
+            renders: true,
+            ..tiny(vec![TradeStrategy::Mixture, TradeStrategy::Uniform])
+        };
+        run(&cfg, &default_instrument(), env_scene(), dir.path(), &|_| {}).expect("run");
+        let path = dir.path().join("renders/ggx_alpha_0.04_diffuse_0.3_specular_1.png");
+        let sheet = Image::read(&path).expect("the sheet is written");
+        // 2 levels x (point, environment) = 4 columns of 16 px; the truth's row and one per strategy.
+        assert_eq!((sheet.width, sheet.height), (4 * 16, 3 * 16));
+        // The truth's row: the lit sphere in both panels, then blank (white) panels.
+        let centre = |col: usize, row: usize| sheet.get(col * 16 + 8, row * 16 + 8);
+        assert!(centre(0, 0).max_element() > 0.0 && centre(0, 0).max_element() < 1.0);
+        assert_eq!(centre(2, 0), glam::DVec3::ONE);
+        // A strategy's row is all renders: no blank panel.
+        for col in 0..4 {
+            assert!(centre(col, 1) != glam::DVec3::ONE, "panel {col}");
+        }
+    }
+
+    #[test]
+    fn render_sheet_scales_environment_panels_and_pads_short_rows() {
+        let mut truth = Image::new(4, 4);
+        truth.pixels.iter_mut().for_each(|p| *p = glam::DVec3::splat(0.5));
+        let env = Image::new(8, 8);
+        let (w, h, rgb) = render_sheet(&truth, &env, &[vec![truth.clone()], vec![]]);
+        assert_eq!((w, h, rgb.len()), (8, 12, 8 * 12 * 3));
+        // Row 1 has one panel and a blank one; row 2 (no renders) is blank.
+        assert_eq!(&rgb[(4 * 8 + 4) * 3..(4 * 8 + 5) * 3], &[255, 255, 255]);
+        assert_eq!(&rgb[(8 * 8) * 3..(8 * 8 + 1) * 3], &[255, 255, 255]);
+        assert!(rgb[0] < 255 && rgb[(4 * 8) * 3] < 255);
     }
 
     #[test]
