@@ -6,11 +6,18 @@ use gonio::encoder::onnx::Weights;
 use gonio::encoder::train::{mae, train, TrainConfig};
 use gonio::encoder::{dataset, ModelKind, INPUT_LEN};
 
+/// `count` synthetic renders of `kind` (seed `seed`), loaded; the directory lives as long as the
+/// returned guard.
+fn tiny_dataset(kind: ModelKind, count: usize, seed: u64) -> (tempfile::TempDir, dataset::Loaded) {
+    let dir = tempfile::tempdir().expect("tempdir");
+    dataset::generate(kind, count, false, seed, dir.path()).expect("dataset");
+    let data = dataset::load(dir.path(), &|_| true).expect("load");
+    (dir, data)
+}
+
 #[test]
 fn tiny_training_lowers_the_loss_and_exports_what_candle_computes() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    dataset::generate(ModelKind::Ward, 8, false, 7, dir.path()).expect("dataset");
-    let data = dataset::load(dir.path(), &|_| true).expect("load");
+    let (_dir, data) = tiny_dataset(ModelKind::Ward, 8, 7);
     let cfg = TrainConfig {
         epochs: 100,
         batch: 8,
@@ -61,9 +68,7 @@ fn tiny_training_lowers_the_loss_and_exports_what_candle_computes() {
 
 #[test]
 fn png_augmentation_feeds_clipped_photos_and_still_trains() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    dataset::generate(ModelKind::Ggx, 6, false, 11, dir.path()).expect("dataset");
-    let data = dataset::load(dir.path(), &|_| true).expect("load");
+    let (_dir, data) = tiny_dataset(ModelKind::Ggx, 6, 11);
     let cfg = |png_augment| TrainConfig {
         epochs: 100,
         batch: 6,
@@ -85,9 +90,7 @@ fn png_augmentation_feeds_clipped_photos_and_still_trains() {
 fn an_ensemble_with_flip_averaging_exports_what_candle_computes() {
     use gonio::encoder::onnx::Model;
     use gonio::encoder::train::{predict_ensemble, train_model, Recipe};
-    let dir = tempfile::tempdir().expect("tempdir");
-    dataset::generate(ModelKind::Ggx, 6, false, 13, dir.path()).expect("dataset");
-    let data = dataset::load(dir.path(), &|_| true).expect("load");
+    let (_dir, data) = tiny_dataset(ModelKind::Ggx, 6, 13);
     let cfg = TrainConfig {
         batch: 6,
         max_steps: Some(3),
@@ -122,9 +125,7 @@ fn an_ensemble_with_flip_averaging_exports_what_candle_computes() {
 #[test]
 fn cross_validation_predicts_every_row_from_a_model_that_never_saw_it() {
     use gonio::encoder::train::{cross_validate, cv_csv, cv_summary, Recipe};
-    let dir = tempfile::tempdir().expect("tempdir");
-    dataset::generate(ModelKind::Ggx, 6, false, 17, dir.path()).expect("dataset");
-    let data = dataset::load(dir.path(), &|_| true).expect("load");
+    let (_dir, data) = tiny_dataset(ModelKind::Ggx, 6, 17);
     let cfg = TrainConfig {
         batch: 2,
         max_steps: Some(2),

@@ -20,7 +20,7 @@
 //! and specular scales are not (only their ratio), so the GGX network predicts alpha alone.
 
 use super::{preprocess, EncoderError, ModelKind, CAPTURE_TOML, INPUT_LEN, INPUT_SIZE};
-use crate::brdf::fit::{fit, FitModel};
+use crate::brdf::fit::{fit, FitModel, FitResult};
 use crate::brdf::fit_lobes::TwoLobes;
 use crate::brdf::spec::Analytic;
 use crate::brdf::{parse_material, Material};
@@ -139,7 +139,12 @@ pub fn sample_two_lobes(rng: &mut ChaCha8Rng) -> TwoLobes {
 
 /// The GGX alpha `brdf::fit` gives a material: the ground truth of MERL and two-lobe images.
 pub fn ggx_fit_alpha(material: &dyn Material) -> Result<f64, String> {
-    match fit(material, FitModel::Ggx).model {
+    ggx_alpha(&fit(material, FitModel::Ggx))
+}
+
+/// The alpha of a GGX fit (`FitModel::Ggx` always gives a GGX model; anything else is an error).
+pub fn ggx_alpha(fit: &FitResult) -> Result<f64, String> {
+    match &fit.model {
         Analytic::Ggx(g) => Ok(g.alpha),
         other => Err(format!("the GGX fit gave {other:?}")),
     }

@@ -12,16 +12,16 @@
 //! labels that far apart, and no encoder can read the label off the photo: a bound on what an encoder
 //! can reach, not a property of one network.
 
-use super::dataset::capture_scene;
+use super::dataset::{capture_scene, ggx_alpha};
 use super::INPUT_SIZE;
 use crate::brdf::fit::{fit_samples, FitModel, FitResult};
-use crate::brdf::spec::Analytic;
 use crate::brdf::Material;
+use crate::render::renderer::Frame;
 use glam::DVec3;
 
 /// The local (wi, wo) of every lit, visible pixel of the capture photo at `size` x `size` (pixel
-/// centres), in the shading frame the renderer uses (normal = +z; isotropic materials only see
-/// theta_i, theta_o and the azimuth between them, so the tangent's choice does not matter).
+/// centres), in the renderer's own shading frame (`render::renderer::Frame`), so the pairs are the
+/// ones the rendered photo evaluated.
 pub fn capture_pairs(size: usize) -> Result<Vec<(DVec3, DVec3)>, String> {
     let scene = capture_scene("lambert:albedo=0.5", size)?;
     let mut pairs = Vec::new();
@@ -31,12 +31,11 @@ pub fn capture_pairs(size: usize) -> Result<Vec<(DVec3, DVec3)>, String> {
             let Some(hit) = scene.shape.intersect(&ray) else {
                 continue;
             };
-            let (t, b) = hit.normal.any_orthonormal_pair();
-            let local = |v: DVec3| DVec3::new(v.dot(t), v.dot(b), v.dot(hit.normal));
-            let wo = local(-ray.dir);
+            let frame = Frame::new(hit.normal);
+            let wo = frame.to_local(-ray.dir);
             for light in &scene.lights {
                 if let Some((wi_world, _)) = light.incident(hit.point) {
-                    let wi = local(wi_world);
+                    let wi = frame.to_local(wi_world);
                     // Guard: a pixel the light does not reach, or seen edge-on, shows nothing.
                     if wi.z > 0.0 && wo.z > 0.0 {
                         pairs.push((wi, wo));
@@ -62,10 +61,7 @@ pub fn observable_fit(material: &dyn Material, model: FitModel) -> Result<FitRes
 
 /// The alpha of `observable_fit` (GGX): the GGX roughness the capture photo of `material` supports.
 pub fn observable_alpha(material: &dyn Material) -> Result<f64, String> {
-    match observable_fit(material, FitModel::Ggx)?.model {
-        Analytic::Ggx(g) => Ok(g.alpha),
-        other => Err(format!("the GGX fit gave {other:?}")),
-    }
+    ggx_alpha(&observable_fit(material, FitModel::Ggx)?)
 }
 
 /// The half angle theta_d (radians) of a pair: half the angle between wi and wo.

@@ -489,25 +489,17 @@ fn file_stem(spec: &str) -> String {
 /// The renders of one material as one sRGB sheet: row 0 is the truth (point light, then environment),
 /// each further row one strategy, its levels' point-light renders coarsest first, then their
 /// environment renders in the same order (the order of `strategies` and of the levels in the csv).
-/// Each point-light panel is as large as the truth's; environment panels are scaled to that size
-/// (nearest pixel) so one sheet holds both.
+/// Every panel is the truth's point-light render's side; other renders (the environment's are
+/// `--env-size`) are area-resampled to it (`encoder::resample_square`).
 pub fn render_sheet(truth: &Image, truth_env: &Image, rows: &[Vec<Image>]) -> (usize, usize, Vec<u8>) {
-    let (w, h) = (truth.width, truth.height);
-    let blank = vec![255u8; w * h * 3];
+    let side = truth.width.min(truth.height);
+    let blank = vec![255u8; side * side * 3];
     let fit = |img: &Image| -> Vec<u8> {
         // Guard: an empty render (none is made; sizes are checked at the CLI) stays a blank panel.
         if img.width == 0 || img.height == 0 {
             return blank.clone();
         }
-        let mut out = Image::new(w, h);
-        for y in 0..h {
-            for x in 0..w {
-                // Nearest pixel: environment renders may be another size than the point-light ones.
-                let (sx, sy) = (x * img.width / w.max(1), y * img.height / h.max(1));
-                out.pixels[y * w + x] = img.get(sx.min(img.width - 1), sy.min(img.height - 1));
-            }
-        }
-        out.to_srgb8()
+        crate::encoder::resample_square(img, side).to_srgb8()
     };
     let cols = rows.iter().map(Vec::len).max().unwrap_or(0).max(2);
     let mut panels = vec![fit(truth), fit(truth_env)];
@@ -517,7 +509,7 @@ pub fn render_sheet(truth: &Image, truth_env: &Image, rows: &[Vec<Image>]) -> (u
         p.resize(cols, blank.clone());
         panels.extend(p);
     }
-    tile(&panels, w, h, cols)
+    tile(&panels, side, side, cols)
 }
 
 /// The command that regenerates this run.
