@@ -91,6 +91,11 @@ mod tests {
         let max_h = pairs.iter().map(th).fold(0.0, f64::max);
         let min_h = pairs.iter().map(th).fold(90.0, f64::min);
         assert!(min_h < 1.5 && max_h > 70.0, "theta_h in [{min_h}, {max_h}] deg");
+        // The figures the model card quotes (`-- --nocapture` shows them).
+        println!(
+            "{} pairs; theta_d in [{lo:.1}, {hi:.1}] deg, theta_h in [{min_h:.1}, {max_h:.1}] deg",
+            pairs.len()
+        );
     }
 
     #[test]
