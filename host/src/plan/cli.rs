@@ -112,7 +112,9 @@ pub struct TradeoffArgs {
     pub interp: super::Interp,
     /// What the reconstruction interpolates on top of: Lambert plus two GGX lobes with a bounded
     /// Fresnel rise fitted to each level's own measurements (two-lobes), the same without the rise
-    /// (two-lobes-plain), one lobe (fit), or nothing (none). The same for every strategy.
+    /// (two-lobes-plain), two-lobes with the Lambert term under the darkest measurement
+    /// (two-lobes-capped, a trial: docs/tradeoff/README.md), one lobe (fit), or nothing (none). The
+    /// same for every strategy.
     #[arg(long, value_enum, default_value_t = super::Prior::TwoLobes)]
     pub prior: super::Prior,
     /// Point-light render side in pixels (default 128; table1: 256).

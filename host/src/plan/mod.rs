@@ -230,6 +230,9 @@ pub enum Prior {
     /// `TwoLobes` without the Fresnel rise (the lobes keep one colour at every angle): the
     /// ablation that shows what the rise is worth (docs/tradeoff/README.md).
     TwoLobesPlain,
+    /// `TwoLobes` with the Lambert term no brighter than the darkest measurement
+    /// (`fit_lobes::DiffuseBound::BelowDarkest`).
+    TwoLobesCapped,
 }
 
 impl fmt::Display for Prior {
@@ -239,6 +242,7 @@ impl fmt::Display for Prior {
             Prior::Fit => "fit",
             Prior::TwoLobes => "two-lobes",
             Prior::TwoLobesPlain => "two-lobes-plain",
+            Prior::TwoLobesCapped => "two-lobes-capped",
         })
     }
 }
@@ -870,7 +874,7 @@ impl Plan {
         )?;
         let prior = match prior {
             Prior::None => None,
-            Prior::Fit | Prior::TwoLobes | Prior::TwoLobesPlain => {
+            Prior::Fit | Prior::TwoLobes | Prior::TwoLobesPlain | Prior::TwoLobesCapped => {
                 let measured = &self.directions[..limit];
                 let pairs: Vec<(DVec3, DVec3)> = measured.iter().map(|d| (d.wi, d.wo)).collect();
                 // Each sample stands for the equal-angle measure its warp gives it (p_angles / p_warp):
@@ -895,7 +899,7 @@ impl Plan {
                 } else {
                     let min_alpha = sharp_lobe_floor(self.specular_alpha, &pairs);
                     FittedPrior::TwoLobes(
-                        crate::brdf::fit_lobes::fit_two_lobes_with(
+                        crate::brdf::fit_lobes::fit_two_lobes_bounded(
                             &pairs,
                             values,
                             &weights,
@@ -904,6 +908,11 @@ impl Plan {
                                 crate::brdf::fit_lobes::LobeFresnel::None
                             } else {
                                 crate::brdf::fit_lobes::LobeFresnel::Bounded
+                            },
+                            if prior == Prior::TwoLobesCapped {
+                                crate::brdf::fit_lobes::DiffuseBound::BelowDarkest
+                            } else {
+                                crate::brdf::fit_lobes::DiffuseBound::Free
                             },
                         )
                         .model,

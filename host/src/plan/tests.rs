@@ -443,3 +443,54 @@ fn auto_resolves_by_the_estimate_and_plans_what_it_resolved_to() {
         assert_eq!(auto.wire(), direct.wire(), "alpha {alpha}");
     }
 }
+
+/// The Lambert bound of `Prior::TwoLobesCapped` (`fit_lobes::DiffuseBound::BelowDarkest`) on the
+/// case it was made for: the first level of a mirror-like metal's mixture plan, a peak and shoulder
+/// samples in every slice and no far field. The free fit explains the shoulders with a Lambert term
+/// brighter than the darkest non-grazing sample; the bounded one stays under it.
+#[test]
+fn the_capped_prior_keeps_lambert_under_the_darkest_sample() {
+    let truth = crate::brdf::spec::parse_material("nbrdf:tungsten-carbide").expect("bundled material");
+    let plan = plan_for(ggx_estimate(0.0076, 0.02), Strategy::Mixture, 4);
+    let values = plan.measure(truth.as_ref());
+    let level1 = plan.levels[0].cumulative_directions;
+    let darkest = plan.directions[..level1]
+        .iter()
+        .zip(&values)
+        .filter(|(d, _)| d.wi.z.min(d.wo.z) >= 80f64.to_radians().cos())
+        .fold(DVec3::INFINITY, |m, (_, v)| m.min(*v));
+    let diffuse = |prior: Prior| match plan.reconstruct_with(1, &values, prior).expect("reconstruct").prior {
+        Some(FittedPrior::TwoLobes(t)) => t.diffuse,
+        other => panic!("{prior}: {other:?}"),
+    };
+    let cap = darkest * std::f64::consts::PI;
+    let free = diffuse(Prior::TwoLobes);
+    let capped = diffuse(Prior::TwoLobesCapped);
+    assert!(
+        free.cmpgt(cap).any(),
+        "the free fit no longer exceeds the cap: {free} vs {cap}"
+    );
+    assert!(capped.cmple(cap * (1.0 + 1e-9)).all(), "{capped} vs cap {cap}");
+    assert!(capped.is_finite() && capped.min_element() >= 0.0, "{capped}");
+    // What the free Lambert does off the peak (docs/tradeoff/README.md quotes these lines).
+    println!("level 1: {level1} directions; Lambert albedo free {free:.4}, capped {capped:.4}, cap {cap:.4}");
+    for level in [1, 2] {
+        let free = plan
+            .reconstruct_with(level, &values, Prior::TwoLobes)
+            .expect("reconstruct");
+        for (ti, to, po) in [
+            (0.0f64, 40.0f64, 90.0f64),
+            (0.0, 60.0, 0.0),
+            (30.0, 60.0, 0.0),
+            (60.0, 40.0, 90.0),
+        ] {
+            let wi = crate::brdf::frame::from_spherical(ti.to_radians(), 0.0);
+            let wo = crate::brdf::frame::from_spherical(to.to_radians(), po.to_radians());
+            println!(
+                "level {level}, theta_i {ti} theta_o {to} phi_o {po}: truth {:.4}, reconstruction {:.4}",
+                truth.eval(wi, wo).x,
+                free.eval(wi, wo).x
+            );
+        }
+    }
+}

@@ -623,6 +623,9 @@ fn markdown(cfg: &TradeoffConfig, rows: &[TradeRow]) -> String {
             super::Prior::TwoLobesPlain => {
                 " (as two-lobes, without the Fresnel rise: an ablation)"
             }
+            super::Prior::TwoLobesCapped => {
+                " (as two-lobes, with the Lambert term no brighter than the darkest measurement)"
+            }
             super::Prior::None => " (the grid interpolates the measurements themselves)",
         }
     );
