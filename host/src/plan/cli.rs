@@ -130,7 +130,8 @@ pub struct TradeoffArgs {
     #[arg(long, default_value_t = 64)]
     pub env_spp: u32,
     /// Also write DIR/renders/MATERIAL.png per material: the truth's renders on the first row, then one
-    /// row per strategy with each level's point-light render, then each level's environment render.
+    /// row per strategy with each level's point-light render, then each level's environment render
+    /// (MATERIAL is the spec as a file name; a second spec with the same name gets MATERIAL-2).
     #[arg(long)]
     pub renders: bool,
     #[arg(short, long)]

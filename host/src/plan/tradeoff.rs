@@ -448,7 +448,9 @@ pub fn run(
         }
         if cfg.renders {
             let (w, h, rgb) = render_sheet(&truth_img, &truth_env, &sheet_rows);
-            sheets.push((format!("renders/{}.png", file_stem(spec)), rgb, w, h));
+            let taken: Vec<&str> = sheets.iter().map(|(name, ..)| name.as_str()).collect();
+            let name = sheet_name(spec, &taken);
+            sheets.push((name, rgb, w, h));
         }
     }
     let md = markdown(cfg, &rows);
@@ -484,6 +486,20 @@ fn file_stem(spec: &str) -> String {
             }
         })
         .collect()
+}
+
+/// The render sheet's path (under the run's folder) for `spec`: `renders/STEM.png`, or, when a spec
+/// before it in the run took that name (two specs that differ only in characters the stem replaces),
+/// `renders/STEM-2.png`, `-3`, ...: every material keeps its own sheet.
+fn sheet_name(spec: &str, taken: &[&str]) -> String {
+    let stem = file_stem(spec);
+    let mut name = format!("renders/{stem}.png");
+    let mut n = 1;
+    while taken.contains(&name.as_str()) {
+        n += 1;
+        name = format!("renders/{stem}-{n}.png");
+    }
+    name
 }
 
 /// The renders of one material as one sRGB sheet: row 0 is the truth (point light, then environment),
@@ -1083,6 +1099,17 @@ mod tests {
         // The preset's levels nest (8x4 inside 8x8, 4x4 inside 8x4).
         super::super::check_grids(&cfg.grids).expect("nested");
         assert_eq!(paper_psnr("nbrdf:red-fabric2", (8, 4)), Some(39.88));
+    }
+
+    #[test]
+    fn render_sheets_of_specs_with_one_stem_get_their_own_names() {
+        let a = sheet_name("ggx:alpha=0.1", &[]);
+        assert_eq!(file_stem("ggx:alpha=0.1"), file_stem("ggx:alpha+0.1"));
+        let b = sheet_name("ggx:alpha+0.1", &[&a]);
+        let c = sheet_name("ggx:alpha_0.1", &[&a, &b]);
+        assert_ne!(a, b);
+        assert_eq!(b, a.replace(".png", "-2.png"));
+        assert_eq!(c, a.replace(".png", "-3.png"));
     }
 
     #[test]
