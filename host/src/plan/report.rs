@@ -109,17 +109,24 @@ impl Scorer {
         Some(render_plain(env, &env.settings, &|| {}))
     }
 
+    /// `brdf_log_err`: `log_err_over` the documented direction set.
     pub fn log_err(&self, truth: &dyn Material, test: &dyn Material) -> f64 {
-        let mut sum = 0.0;
-        for &(wi, wo) in &self.pairs {
-            let a = truth.eval(wi, wo) * wo.z;
-            let b = test.eval(wi, wo) * wo.z;
-            for c in 0..3 {
-                sum += (a[c].max(0.0).ln_1p() - b[c].max(0.0).ln_1p()).abs() / 3.0;
-            }
-        }
-        sum / self.pairs.len().max(1) as f64
+        log_err_over(&self.pairs, truth, test)
     }
+}
+
+/// Mean over `pairs` of |log(1 + f cos) - log(1 + f_test cos)|, averaged over RGB (Liu et al. 2023);
+/// 0 for no pairs.
+pub fn log_err_over(pairs: &[(DVec3, DVec3)], truth: &dyn Material, test: &dyn Material) -> f64 {
+    let mut sum = 0.0;
+    for &(wi, wo) in pairs {
+        let a = truth.eval(wi, wo) * wo.z;
+        let b = test.eval(wi, wo) * wo.z;
+        for c in 0..3 {
+            sum += (a[c].max(0.0).ln_1p() - b[c].max(0.0).ln_1p()).abs() / 3.0;
+        }
+    }
+    sum / pairs.len().max(1) as f64
 }
 
 /// Render side of the predictive rule's simulated captures.
