@@ -132,7 +132,7 @@ pub enum DiffuseBound {
     /// bound only removes fits the samples themselves contradict. Why it matters: a plan that
     /// crowds a sharp peak (2 x 2 of a mirror-like metal: a peak and two shoulder samples per
     /// slice) never samples the far field, and a free fit explains the shoulders with a Lambert
-    /// term that lights the whole hemisphere 5-10x too bright (tungsten-carbide; see
+    /// term that lights the whole hemisphere 6-13x too bright (tungsten-carbide; see
     /// docs/tradeoff/README.md). On the training set it did not pay (it costs at fine levels, where
     /// the darkest samples sit in the shadowed grazing band): `--prior two-lobes-capped` is an
     /// ablation, not the default.
@@ -183,8 +183,9 @@ pub fn fit_two_lobes_bounded(
             target[c].push((v[c].max(0.0) * wo.z).ln_1p());
         }
     }
-    // The Lambert cap per channel (albedo units: kd / pi <= min f); infinite when free. Guard: the
-    // values were clamped at 0 above, so the cap is finite and >= 0 whenever a sample is kept.
+    // The Lambert cap per channel (albedo units: kd / pi <= min f); infinite when free or when no
+    // kept sample is above the grazing band. Guard: the values were clamped at 0 above, so a finite
+    // cap is >= 0.
     let cap: [f64; 3] = std::array::from_fn(|c| match bound {
         DiffuseBound::Free => f64::INFINITY,
         DiffuseBound::BelowDarkest => target[c]
@@ -502,15 +503,7 @@ mod tests {
     /// with the other lobe (nearly) empty.
     #[test]
     fn recovers_two_lobes_and_leaves_a_missing_one_empty() {
-        let truth = TwoLobes {
-            diffuse: DVec3::new(0.05, 0.1, 0.2),
-            sharp_alpha: alpha_grid(4),
-            sharp: DVec3::splat(0.3),
-            broad_alpha: alpha_grid(14),
-            broad: DVec3::new(0.5, 0.2, 0.1),
-            sharp_grazing: DVec3::splat(0.3),
-            broad_grazing: DVec3::new(0.5, 0.2, 0.1),
-        };
+        let truth = two_lobe_truth();
         let fit = fit_unfloored(&truth);
         let m = &fit.model;
         assert_same_roughness(m, &truth);
@@ -676,21 +669,12 @@ mod tests {
         assert!((x[0] + x[1] - 2.0).abs() < 1e-12 && (x[2] - 1.0).abs() < 1e-12, "{x:?}");
     }
 
-    /// `fit_two_lobes` of `truth` sampled on the documented direction set, equal weights, no floor.
     /// A material of the family never contradicts the Lambert bound (its Lambert term is under every
     /// sample), so the bounded fit recovers it as the free one does; when the bound binds, the
     /// Lambert term sits on it and the other terms are refitted around it (loss no lower than free).
     #[test]
     fn the_diffuse_bound_changes_nothing_it_need_not_and_holds_where_it_binds() {
-        let truth = TwoLobes {
-            diffuse: DVec3::new(0.05, 0.1, 0.2),
-            sharp_alpha: alpha_grid(4),
-            sharp: DVec3::splat(0.3),
-            broad_alpha: alpha_grid(14),
-            broad: DVec3::new(0.5, 0.2, 0.1),
-            sharp_grazing: DVec3::splat(0.3),
-            broad_grazing: DVec3::new(0.5, 0.2, 0.1),
-        };
+        let truth = two_lobe_truth();
         let pairs = fit_directions();
         let values: Vec<DVec3> = pairs.iter().map(|&(wi, wo)| truth.eval(wi, wo)).collect();
         let w = vec![1.0; pairs.len()];
@@ -728,6 +712,20 @@ mod tests {
         assert!(capped.rms_log_error >= free.rms_log_error - 1e-12);
     }
 
+    /// Lambert plus a sharp and a broad lobe, both on the roughness grid, with distinct colours.
+    fn two_lobe_truth() -> TwoLobes {
+        TwoLobes {
+            diffuse: DVec3::new(0.05, 0.1, 0.2),
+            sharp_alpha: alpha_grid(4),
+            sharp: DVec3::splat(0.3),
+            broad_alpha: alpha_grid(14),
+            broad: DVec3::new(0.5, 0.2, 0.1),
+            sharp_grazing: DVec3::splat(0.3),
+            broad_grazing: DVec3::new(0.5, 0.2, 0.1),
+        }
+    }
+
+    /// `fit_two_lobes` of `truth` sampled on the documented direction set, equal weights, no floor.
     fn fit_unfloored(truth: &dyn Material) -> TwoLobeFit {
         let pairs = fit_directions();
         let values: Vec<DVec3> = pairs.iter().map(|&(wi, wo)| truth.eval(wi, wo)).collect();

@@ -230,8 +230,8 @@ pub enum Prior {
     /// `TwoLobes` without the Fresnel rise (the lobes keep one colour at every angle): the
     /// ablation that shows what the rise is worth (docs/tradeoff/README.md).
     TwoLobesPlain,
-    /// `TwoLobes` with the Lambert term no brighter than the darkest measurement
-    /// (`fit_lobes::DiffuseBound::BelowDarkest`).
+    /// `TwoLobes` with the Lambert term no brighter than the darkest measurement within 80 deg of
+    /// the normal (`fit_lobes::DiffuseBound::BelowDarkest`): a trial, not the default.
     TwoLobesCapped,
 }
 

@@ -640,7 +640,8 @@ fn markdown(cfg: &TradeoffConfig, rows: &[TradeRow]) -> String {
                 " (as two-lobes, without the Fresnel rise: an ablation)"
             }
             super::Prior::TwoLobesCapped => {
-                " (as two-lobes, with the Lambert term no brighter than the darkest measurement)"
+                " (as two-lobes, with the Lambert term no brighter than the darkest measurement within 80 deg of \
+                 the normal: a trial)"
             }
             super::Prior::None => " (the grid interpolates the measurements themselves)",
         }
