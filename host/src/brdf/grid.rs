@@ -19,6 +19,12 @@
 //!   nodes of N x M are nodes of 2N x 2M, so a scan can stop after any level. Beyond the last ring
 //!   u.x > (N - 1) / N the value is held constant. `MeasurementGrid::from_slices` takes any slice
 //!   warps (the mixture warp needs the estimate, so it is not a `WarpKind`).
+//! * `NodeLayout::NestedFarRing` (the mixture plans' levels): as `Nested`, except that a two-ring
+//!   grid (N = 2) has its second ring at u.x = 3/4 instead of 1/2. A node of every finer nested
+//!   level, so the levels still nest and every later level's nodes are unchanged; it matters because
+//!   for a sharp estimate's mixture warp u.x = 1/2 is the peak's shoulder, and a first level
+//!   measuring only peak and shoulder leaves the far field (most of the hemisphere) to the fit's
+//!   guess (docs/tradeoff/README.md).
 
 use super::frame::{from_spherical, phi_of, rotate_z, theta_of};
 use super::roughness::MIRROR_ALPHA;
@@ -53,6 +59,52 @@ pub enum NodeLayout {
     Endpoints,
     /// u.x = i / N: nested under doubling, pole included, rim excluded.
     Nested,
+    /// As `Nested`, but N = 2 has u.x = 0 and 3/4.
+    NestedFarRing,
+}
+
+/// u.x of `NestedFarRing`'s second ring at N = 2.
+pub const FAR_RING_X: f64 = 0.75;
+
+impl NodeLayout {
+    /// The name files record (grid.json's `layout`).
+    pub fn name(self) -> &'static str {
+        match self {
+            NodeLayout::Endpoints => "endpoints",
+            NodeLayout::Nested => "nested",
+            NodeLayout::NestedFarRing => "nested-far-ring",
+        }
+    }
+
+    /// u.x of ring i of an N-ring grid.
+    pub fn node_x(self, i: usize, n: usize) -> f64 {
+        match self {
+            NodeLayout::Endpoints => i as f64 / (n - 1).max(1) as f64,
+            NodeLayout::NestedFarRing if n == 2 && i == 1 => FAR_RING_X,
+            NodeLayout::Nested | NodeLayout::NestedFarRing => i as f64 / n as f64,
+        }
+    }
+
+    /// Ring i of an N-ring level as a ring of the finest level's `fine_n` (nested layouts; N
+    /// divides `fine_n`). `NestedFarRing` needs 4 | `fine_n` for its far ring to be a finest ring;
+    /// the planner only picks it then (`plan::node_layout`), and without it this returns `Nested`'s.
+    pub fn fine_index(self, i: usize, n: usize, fine_n: usize) -> usize {
+        match self {
+            NodeLayout::NestedFarRing if n == 2 && i == 1 && fine_n % 4 == 0 => 3 * fine_n / 4,
+            _ => i * (fine_n / n.max(1)),
+        }
+    }
+
+    /// Continuous ring coordinate of u.x in an N-ring grid, in [0, N - 1] (held beyond the last
+    /// ring in the nested layouts).
+    fn ring_coordinate(self, ux: f64, n: usize) -> f64 {
+        let ux = ux.clamp(0.0, 1.0);
+        match self {
+            NodeLayout::Endpoints => ux * (n - 1) as f64,
+            NodeLayout::NestedFarRing if n == 2 => (ux / FAR_RING_X).min(1.0),
+            NodeLayout::Nested | NodeLayout::NestedFarRing => (ux * n as f64).min((n - 1) as f64),
+        }
+    }
 }
 
 #[derive(Clone, Debug)]
@@ -203,11 +255,7 @@ impl MeasurementGrid {
 
     /// The u of node (i, j).
     pub fn node_u(&self, i: usize, j: usize) -> DVec2 {
-        let x = match self.layout {
-            NodeLayout::Endpoints => i as f64 / (self.n - 1) as f64,
-            NodeLayout::Nested => i as f64 / self.n as f64,
-        };
-        DVec2::new(x, j as f64 / self.m as f64)
+        DVec2::new(self.layout.node_x(i, self.n), j as f64 / self.m as f64)
     }
 
     /// Set node (k, i, j) (a measurement arriving); out-of-range indices are ignored.
@@ -271,11 +319,7 @@ impl MeasurementGrid {
 
     /// Bilinear in u within slice k, over the valid nodes only; `None` if none of the four is valid.
     fn bilinear(&self, k: usize, u: DVec2) -> Option<DVec3> {
-        let x = match self.layout {
-            NodeLayout::Endpoints => u.x.clamp(0.0, 1.0) * (self.n - 1) as f64,
-            // Held constant beyond the last ring (u.x > (N - 1) / N).
-            NodeLayout::Nested => (u.x.clamp(0.0, 1.0) * self.n as f64).min((self.n - 1) as f64),
-        };
+        let x = self.layout.ring_coordinate(u.x, self.n);
         let i0 = (x.floor() as usize).min(self.n - 2);
         let fx = x - i0 as f64;
         let y = u.y.rem_euclid(1.0) * self.m as f64;
@@ -437,6 +481,32 @@ pub fn convergence(
 mod tests {
     use super::*;
     use crate::brdf::analytic::{Ggx, Ward};
+
+    /// The far-ring layout moves only the second ring of a two-ring grid, to a node of every finer
+    /// nested level, and interpolates between the pole and it (held beyond).
+    #[test]
+    fn the_far_ring_layout_moves_one_ring_and_nests() {
+        use NodeLayout::{Nested, NestedFarRing};
+        assert_eq!(NestedFarRing.node_x(1, 2), FAR_RING_X);
+        assert_eq!(Nested.node_x(1, 2), 0.5);
+        for n in [4, 8, 16] {
+            for i in 0..n {
+                assert_eq!(NestedFarRing.node_x(i, n), Nested.node_x(i, n));
+                assert_eq!(NestedFarRing.fine_index(i, n, 16), Nested.fine_index(i, n, 16));
+            }
+            // The far ring is a ring of every finer level.
+            let far = NestedFarRing.fine_index(1, 2, 16);
+            assert_eq!(far, 12);
+            assert!((0..n).any(|i| Nested.fine_index(i, n, 16) == far));
+        }
+        // A finest level without a ring at 3/4 (never paired with this layout: `plan::node_layout`)
+        // keys Nested's ring rather than a wrong one.
+        assert_eq!(NestedFarRing.fine_index(1, 2, 2), 1);
+        for (ux, want) in [(0.0, 0.0), (0.375, 0.5), (0.75, 1.0), (1.0, 1.0)] {
+            assert_eq!(NestedFarRing.ring_coordinate(ux, 2), want);
+        }
+        assert_eq!(Nested.ring_coordinate(0.375, 2), 0.75);
+    }
 
     #[test]
     fn thetas_are_equal_steps_in_cosine() {

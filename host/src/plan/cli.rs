@@ -108,7 +108,7 @@ pub struct TradeoffArgs {
     #[arg(long, value_enum, default_value_t = super::Lookup::Query)]
     pub lookup: super::Lookup,
     /// What the reconstruction interpolates between nodes.
-    #[arg(long, value_enum, default_value_t = super::Interp::Log)]
+    #[arg(long, value_enum, default_value_t = super::Interp::Ratio)]
     pub interp: super::Interp,
     /// What the reconstruction interpolates on top of: Lambert plus two GGX lobes with a bounded
     /// Fresnel rise fitted to each level's own measurements (two-lobes), the same without the rise

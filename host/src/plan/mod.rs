@@ -3,7 +3,8 @@
 //! * Incoming: 1 phi x K theta, spaced by `Spacing` (cosine steps as the grid's default, equal angle
 //!   steps, or RGL's equal steps in the GGX projected area sigma).
 //! * Outgoing: per incoming theta, nested levels of N x M nodes in u-space (`NodeLayout::Nested`:
-//!   u = (i / N, j / M)), through the slice warp of the chosen `Strategy`. By default the levels are
+//!   u = (i / N, j / M); the mixture's plans use `NodeLayout::NestedFarRing`, whose first level has
+//!   its second ring at u.x = 3/4), through the slice warp of the chosen `Strategy`. By default the levels are
 //!   square, N = M = 2, 4, 8, ...; any list works whose every level's N and M divide the next
 //!   level's (e.g. the paper's 2x2, 4x4, 8x4, 8x8): then each level's nodes are nodes of the next,
 //!   so a scan can stop after any level and keep all it measured. Nodes that land on the same
@@ -200,13 +201,25 @@ pub enum Interp {
     /// decays toward its neighbours geometrically instead of spreading a linear ramp of peak-sized
     /// values over the whole cell, which at coarse levels covers much of the hemisphere.
     Log,
+    /// log(f + RATIO_FLOOR) per channel: over a fitted prior the grid then holds the ratio
+    /// measured / prior (up to the floor), so a node's correction scales with the prior where it is
+    /// carried to. In log(1 + f) the residual is an absolute difference wherever f << 1: a node on a
+    /// peak the prior underestimates then lifts every dark point of its cells by about that
+    /// difference, which at coarse levels is most of the hemisphere (docs/tradeoff/README.md).
+    Ratio,
 }
+
+/// `Interp::Ratio`'s floor (sr^-1): below it a ratio is not trusted. The guard of its log (f is
+/// clamped at 0, so f + floor > 0), and the scale where a measurement's noise would make a ratio
+/// to a near-zero prior meaningless. Chosen on the training set: 1e-4 and 1e-3 tie, 1e-2 is worse.
+pub const RATIO_FLOOR: f64 = 1e-3;
 
 impl fmt::Display for Interp {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(match self {
             Interp::Linear => "linear",
             Interp::Log => "log",
+            Interp::Ratio => "ratio",
         })
     }
 }
@@ -297,7 +310,7 @@ impl Default for PlanConfig {
             k: crate::brdf::grid::DEFAULT_K,
             grids: square_grids(4),
             lookup: Lookup::Query,
-            interp: Interp::Log,
+            interp: Interp::Ratio,
             prior: Prior::TwoLobes,
         }
     }
@@ -497,6 +510,20 @@ pub struct Plan {
     pub settle_exposure_seconds: f64,
     /// The alpha of the pure-specular slice warps (to re-centre them on a query's wi).
     specular_alpha: f64,
+    /// Where each level's nodes sit in u (`node_layout`).
+    layout: NodeLayout,
+}
+
+/// The node layout of a plan with this warp and finest N: the mixture's first level measures the
+/// pole and u.x = 3/4 (`NodeLayout::NestedFarRing`, when 3/4 is a node of the finest level);
+/// every other warp, and the equal-angle grid whose u.x = 1/2 is already theta_o = 45 deg, keeps
+/// `Nested`.
+fn node_layout(warp: Strategy, fine_n: usize) -> NodeLayout {
+    if warp == Strategy::Mixture && fine_n % 4 == 0 {
+        NodeLayout::NestedFarRing
+    } else {
+        NodeLayout::Nested
+    }
 }
 
 /// A level's measurements as a material: the measurement grid, read through `Lookup`.
@@ -537,12 +564,14 @@ impl Interp {
         match self {
             Interp::Linear => v,
             Interp::Log => v.max(DVec3::ZERO).map(f64::ln_1p),
+            Interp::Ratio => v.max(DVec3::ZERO).map(|x| (x + RATIO_FLOOR).ln()),
         }
     }
     fn inverse(self, v: DVec3) -> DVec3 {
         match self {
             Interp::Linear => v,
             Interp::Log => v.map(f64::exp_m1),
+            Interp::Ratio => v.map(|x| x.exp() - RATIO_FLOOR),
         }
     }
 }
@@ -633,6 +662,7 @@ impl Planner {
         let slices: Vec<SliceWarp> = thetas.iter().map(|&t| self.slice_warp(config.strategy, t)).collect();
         let (fine_n, fine_m) = *config.grids.last().expect("checked non-empty");
         let settle_exposure = cfg.settle_ms as f64 * 1e-3 + cfg.exposure_us as f64 * 1e-6;
+        let layout = node_layout(config.strategy.resolve(self.estimate.alpha()), fine_n);
 
         // Unique directions per level, in generation (raster) order: k, then j, then i.
         let mut node_dir_gen: HashMap<(usize, usize, usize), Option<usize>> = HashMap::new();
@@ -642,17 +672,17 @@ impl Planner {
         let mut dropped = Dropped::default();
         for (level0, &(n, m)) in config.grids.iter().enumerate() {
             let level = level0 + 1;
-            let (stride_i, stride_j) = (fine_n / n, fine_m / m);
+            let stride_j = fine_m / m;
             let start = gen.len();
             for (k, warp) in slices.iter().enumerate() {
                 let wi = from_spherical(thetas[k], 0.0);
                 for j in 0..m {
                     for i in 0..n {
-                        let key = (k, i * stride_i, j * stride_j);
+                        let key = (k, layout.fine_index(i, n, fine_n), j * stride_j);
                         if node_dir_gen.contains_key(&key) {
                             continue;
                         }
-                        let u = DVec2::new(i as f64 / n as f64, j as f64 / m as f64);
+                        let u = DVec2::new(layout.node_x(i, n), j as f64 / m as f64);
                         let Some(wo) = sample_or_nudge(warp, u, fine_n) else {
                             dropped.below_horizon += 1;
                             node_dir_gen.insert(key, None);
@@ -779,6 +809,7 @@ impl Planner {
             node_dir,
             settle_exposure_seconds: settle_exposure,
             specular_alpha: self.estimate.alpha().max(PLAN_ALPHA_MIN),
+            layout,
         })
     }
 }
@@ -795,6 +826,11 @@ impl Plan {
 
     pub fn wire(&self) -> Vec<Direction> {
         self.directions.iter().map(PlannedDirection::wire).collect()
+    }
+
+    /// Where the levels' nodes sit in u.
+    pub fn layout(&self) -> NodeLayout {
+        self.layout
     }
 
     /// The plan up to `level` (its directions are a prefix of the order).
@@ -860,12 +896,12 @@ impl Plan {
         }
         let (n, m) = (summary.n, summary.m);
         let (fine_n, fine_m) = self.config.grids.last().copied().unwrap_or((n, m));
-        let (stride_i, stride_j) = (fine_n / n, fine_m / m);
+        let stride_j = fine_m / m;
         let k_count = self.thetas.len();
         let cells = k_count * n * m;
         let mut grid = MeasurementGrid::from_slices(
             self.slices.clone(),
-            NodeLayout::Nested,
+            self.layout,
             self.thetas.clone(),
             n,
             m,
@@ -926,7 +962,7 @@ impl Plan {
                 for i in 0..n {
                     let v = self
                         .node_dir
-                        .get(&(k, i * stride_i, j * stride_j))
+                        .get(&(k, self.layout.fine_index(i, n, fine_n), j * stride_j))
                         .filter(|&&d| d < limit)
                         .map(|&d| {
                             let base = match &prior {

@@ -205,7 +205,7 @@ impl Default for TradeoffConfig {
             paper: false,
             preset: None,
             lookup: super::Lookup::Query,
-            interp: super::Interp::Log,
+            interp: super::Interp::Ratio,
             prior: super::Prior::TwoLobes,
             renders: false,
         }

@@ -303,7 +303,7 @@ fn grid_json(i: &OutputInputs) -> Result<String, serde_json::Error> {
         "strategy": i.record.strategy,
         "warp": plan.warp.to_string(),
         "spacing": i.record.spacing,
-        "layout": "nested",
+        "layout": plan.layout().name(),
         "max_level": plan.config.grids.len(),
         "level": level,
         "n": n,
