@@ -105,17 +105,17 @@ pub struct TradeoffArgs {
     #[arg(long, default_value_t = 8)]
     pub incoming: usize,
     /// How the reconstruction finds u between incoming slices.
-    #[arg(long, value_enum, default_value_t = super::Lookup::Query)]
+    #[arg(long, value_enum, default_value_t = super::PlanConfig::default().lookup)]
     pub lookup: super::Lookup,
     /// What the reconstruction interpolates between nodes.
-    #[arg(long, value_enum, default_value_t = super::Interp::Ratio)]
+    #[arg(long, value_enum, default_value_t = super::PlanConfig::default().interp)]
     pub interp: super::Interp,
     /// What the reconstruction interpolates on top of: Lambert plus two GGX lobes with a bounded
     /// Fresnel rise fitted to each level's own measurements (two-lobes), the same without the rise
     /// (two-lobes-plain), two-lobes with the Lambert term under the darkest measurement
     /// (two-lobes-capped, a trial: docs/tradeoff/README.md), one lobe (fit), or nothing (none). The
     /// same for every strategy.
-    #[arg(long, value_enum, default_value_t = super::Prior::TwoLobes)]
+    #[arg(long, value_enum, default_value_t = super::PlanConfig::default().prior)]
     pub prior: super::Prior,
     /// Point-light render side in pixels (default 128; table1: 256).
     #[arg(long)]

@@ -193,6 +193,7 @@ pub struct TradeoffConfig {
 
 impl Default for TradeoffConfig {
     fn default() -> Self {
+        let plan_defaults = super::PlanConfig::default();
         Self {
             materials: super::report::DEFAULT_MATERIALS.iter().map(|s| s.to_string()).collect(),
             strategies: ALL_STRATEGIES.to_vec(),
@@ -204,9 +205,10 @@ impl Default for TradeoffConfig {
             env_spp: 64,
             paper: false,
             preset: None,
-            lookup: super::Lookup::Query,
-            interp: super::Interp::Ratio,
-            prior: super::Prior::TwoLobes,
+            // The planner's reconstruction, so the report scores what a scan would produce.
+            lookup: plan_defaults.lookup,
+            interp: plan_defaults.interp,
+            prior: plan_defaults.prior,
             renders: false,
         }
     }
