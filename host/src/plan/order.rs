@@ -9,8 +9,10 @@
 //!   that reaches a and every pose that reaches b (`Candidates`: both IK branches, every unwinding).
 //!   Any order's move a -> b takes at least d(a, b), whatever branch the firmware picks.
 //! * Order: nearest neighbour from the start pose, then 2-opt and Or-opt (segments of 1-3) over
-//!   neighbour lists (K nearest by d, from a bucket grid) until no move improves, on the open path
-//!   (start fixed, end free).
+//!   neighbour lists (K nearest by d, from a bucket grid over the poses, `PoseGrid`) until no move
+//!   improves, on the open path (start fixed, end free). When every listed neighbour is visited,
+//!   the nearest neighbour step asks the same grid, with visited points taken out, for the nearest
+//!   point left: exact, and no full scan (at N = 32 the scans were a third of the ordering time).
 //! * Lower bound (`degree_bound`): in a path through the n directions every direction but the two
 //!   ends has two edges, each end one, so the path is at least half the sum over directions of their
 //!   two shortest edges, less the two largest second-shortest. It reads the exact neighbour lists the
@@ -141,94 +143,156 @@ impl Points<'_> {
         metric(self.cfg, self.pts[a], self.pts[b])
     }
 
-    /// The K nearest points of every point under d, from a bucket grid over the poses' arm and
-    /// tilt angles with cells of `CELL_SECONDS` of travel at each axis's top speed. A point s + 1
-    /// or more cells (Chebyshev) away from every cell of the query's poses needs some axis to travel
-    /// at least s cells, which takes at least that axis's rest-to-rest move time for s cells; the
-    /// search stops once the K-th best found is within that: exact K nearest, in about O(n K)
-    /// instead of O(n^2).
-    fn neighbours(&self) -> Vec<Vec<usize>> {
+    /// The K nearest points of every point under d with their distances, nearest first
+    /// (`PoseGrid::nearest`), in parallel.
+    fn neighbours(&self, grid: &PoseGrid) -> Vec<Vec<(f64, usize)>> {
         let n = self.pts.len();
-        let axes = [0usize, 1, 2];
-        let h = axes.map(|a| self.cfg.axes[a].max_speed * CELL_SECONDS);
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for c in &self.pts {
-            for p in &c.0 {
-                let v = p.to_array();
-                for a in axes {
-                    lo[a] = lo[a].min(v[a]);
-                    hi[a] = hi[a].max(v[a]);
-                }
-            }
-        }
-        let dims = axes.map(|a| (((hi[a] - lo[a]) / h[a]).floor() as usize + 1).max(1));
-        let cell_of = |p: &Pose<f64>| -> [usize; 3] {
-            let v = p.to_array();
-            axes.map(|a| (((v[a] - lo[a]) / h[a]).floor().max(0.0) as usize).min(dims[a] - 1))
-        };
-        let flat = |c: [usize; 3]| (c[0] * dims[1] + c[1]) * dims[2] + c[2];
-        let mut cells: Vec<Vec<usize>> = vec![Vec::new(); dims[0] * dims[1] * dims[2]];
-        for (i, c) in self.pts.iter().enumerate() {
-            for p in &c.0 {
-                let f = flat(cell_of(p));
-                if cells[f].last() != Some(&i) {
-                    cells[f].push(i);
-                }
-            }
-        }
-        let max_shell = *dims.iter().max().unwrap_or(&1);
-        // Least time to points beyond shell s: some axis travels at least s cells, from rest to rest.
-        let shell_bound: Vec<f64> = (0..=max_shell)
-            .map(|s| {
-                axes.iter()
-                    .map(|&a| {
-                        let c = &self.cfg.axes[a];
-                        gonio_shared::motion::move_time(s as f64 * h[a], c.max_speed, c.max_accel)
-                    })
-                    .fold(f64::INFINITY, f64::min)
-            })
-            .collect();
+        let k = NEIGHBOURS.min(n - 1);
         // Queries are independent: in parallel, each worker with its own visit stamps.
         (0..n)
             .into_par_iter()
             .map_init(
                 || vec![usize::MAX; n],
-                |stamp, q| {
-                    let k = NEIGHBOURS.min(n - 1);
-                    let mut best: Vec<(f64, usize)> = Vec::with_capacity(k + 1);
-                    let centres: Vec<[usize; 3]> = self.pts[q].0.iter().map(cell_of).collect();
-                    stamp[q] = q;
-                    for (shell, &reach) in shell_bound.iter().enumerate() {
-                        for c in &centres {
-                            for_shell(*c, shell, dims, |cell| {
-                                for &j in &cells[flat(cell)] {
-                                    if stamp[j] == q {
-                                        continue;
-                                    }
-                                    stamp[j] = q;
-                                    let d = self.d(q, j);
-                                    if best.len() < k || d < best[best.len() - 1].0 {
-                                        let at = best.partition_point(|x| x.0 <= d);
-                                        best.insert(at, (d, j));
-                                        best.truncate(k);
-                                    }
-                                }
-                            });
-                        }
-                        if best.len() == k && best[k - 1].0 <= reach {
-                            break;
-                        }
-                    }
-                    best.into_iter().map(|(_, j)| j).collect()
-                },
+                |stamp, q| grid.nearest(self, q, k, stamp, |j| j != q),
             )
             .collect()
     }
 }
 
-/// Cell size of the neighbour search, in seconds of travel at an axis's top speed.
-const CELL_SECONDS: f64 = 0.25;
+/// A bucket grid over the points' poses (arm and tilt angles), with cells of `CELL_SECONDS` of
+/// travel at each axis's top speed; every pose of every point is filed in its cell.
+///
+/// Why a nearest search over it is exact: a point s + 1 or more cells (Chebyshev) away from every
+/// cell of the query's poses needs some axis to travel more than s cells, which takes at least that
+/// axis's rest-to-rest time for s cells (a synchronised move is never faster than any one axis
+/// alone), so the search stops once the K-th best found is within that. About O(K) per query
+/// instead of O(n).
+struct PoseGrid {
+    lo: [f64; 3],
+    h: [f64; 3],
+    dims: [usize; 3],
+    cells: Vec<Vec<usize>>,
+    /// shell_bound[s]: least move time to any pose beyond shell s of a query's cell.
+    shell_bound: Vec<f64>,
+}
+
+/// The grid's axes: light, detector, tilt. Only the azimuth may be continuous
+/// (`InstrumentConfig::validate`), and a grid over it would need wrapping; leaving it out only
+/// makes the cells coarser, never the search inexact.
+const GRID_AXES: [usize; 3] = [0, 1, 2];
+
+impl PoseGrid {
+    fn new(p: &Points) -> Self {
+        let h = GRID_AXES.map(|a| p.cfg.axes[a].max_speed * CELL_SECONDS);
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for c in &p.pts {
+            for q in &c.0 {
+                let v = q.to_array();
+                for a in GRID_AXES {
+                    lo[a] = lo[a].min(v[a]);
+                    hi[a] = hi[a].max(v[a]);
+                }
+            }
+        }
+        let dims = GRID_AXES.map(|a| (((hi[a] - lo[a]) / h[a]).floor() as usize + 1).max(1));
+        let mut grid = Self {
+            lo,
+            h,
+            dims,
+            cells: vec![Vec::new(); dims[0] * dims[1] * dims[2]],
+            shell_bound: Vec::new(),
+        };
+        for (i, c) in p.pts.iter().enumerate() {
+            for q in &c.0 {
+                let f = grid.flat(grid.cell_of(q));
+                if grid.cells[f].last() != Some(&i) {
+                    grid.cells[f].push(i);
+                }
+            }
+        }
+        let max_shell = *dims.iter().max().unwrap_or(&1);
+        // Least time to points beyond shell s: some axis travels at least s cells, from rest to rest.
+        grid.shell_bound = (0..=max_shell)
+            .map(|s| {
+                GRID_AXES
+                    .iter()
+                    .map(|&a| {
+                        let c = &p.cfg.axes[a];
+                        gonio_shared::motion::move_time(s as f64 * h[a], c.max_speed, c.max_accel)
+                    })
+                    .fold(f64::INFINITY, f64::min)
+            })
+            .collect();
+        grid
+    }
+
+    fn cell_of(&self, p: &Pose<f64>) -> [usize; 3] {
+        let v = p.to_array();
+        GRID_AXES.map(|a| (((v[a] - self.lo[a]) / self.h[a]).floor().max(0.0) as usize).min(self.dims[a] - 1))
+    }
+
+    fn flat(&self, c: [usize; 3]) -> usize {
+        (c[0] * self.dims[1] + c[1]) * self.dims[2] + c[2]
+    }
+
+    /// The `k` nearest points to `q` under d among those `accept` admits, nearest first, with
+    /// their distances (fewer if fewer are filed). `stamp` (one slot per point, never holding `q`
+    /// before the call) marks the points already measured in this query.
+    fn nearest(
+        &self,
+        p: &Points,
+        q: usize,
+        k: usize,
+        stamp: &mut [usize],
+        accept: impl Fn(usize) -> bool,
+    ) -> Vec<(f64, usize)> {
+        let mut best: Vec<(f64, usize)> = Vec::with_capacity(k + 1);
+        if k == 0 {
+            return best;
+        }
+        let centres: Vec<[usize; 3]> = p.pts[q].0.iter().map(|c| self.cell_of(c)).collect();
+        for (shell, &reach) in self.shell_bound.iter().enumerate() {
+            for c in &centres {
+                for_shell(*c, shell, self.dims, |cell| {
+                    for &j in &self.cells[self.flat(cell)] {
+                        if stamp[j] == q {
+                            continue;
+                        }
+                        stamp[j] = q;
+                        if !accept(j) {
+                            continue;
+                        }
+                        let d = p.d(q, j);
+                        if best.len() < k || d < best[best.len() - 1].0 {
+                            let at = best.partition_point(|x| x.0 <= d);
+                            best.insert(at, (d, j));
+                            best.truncate(k);
+                        }
+                    }
+                });
+            }
+            if best.len() == k && best[k - 1].0 <= reach {
+                break;
+            }
+        }
+        best
+    }
+
+    /// Take point `i` out of the grid (its every cell), so later searches skip it for free.
+    fn remove(&mut self, p: &Points, i: usize) {
+        for c in &p.pts[i].0 {
+            let f = self.flat(self.cell_of(c));
+            self.cells[f].retain(|&x| x != i);
+        }
+    }
+}
+
+/// Cell size of the neighbour search, in seconds of travel at an axis's top speed. Any size is
+/// exact; this one is the fastest of 0.06, 0.1, 0.15, 0.25 and 0.4 s on the 6016-direction last
+/// level of a mixture plan at N = 32 (`cargo bench -p gonio --bench plan`): smaller cells mean
+/// more empty cells per shell, larger ones more points per cell.
+const CELL_SECONDS: f64 = 0.15;
 
 /// Call `f` on every cell at Chebyshev distance exactly `s` from `c` inside `dims`.
 fn for_shell(c: [usize; 3], s: usize, dims: [usize; 3], mut f: impl FnMut([usize; 3])) {
@@ -277,39 +341,31 @@ pub fn optimise(cfg: &InstrumentConfig<f64>, start: &Candidates, items: &[Candid
     pts.extend(items.iter());
     let p = Points { cfg, pts };
     // Nearest neighbour: the nearest unvisited point among the neighbour list, else (all visited)
-    // the nearest of the remaining points by a full scan.
-    let nb = p.neighbours();
+    // the nearest unvisited point by a grid search over the points not yet visited.
+    let mut grid = PoseGrid::new(&p);
+    let nb = p.neighbours(&grid);
     let mut path = vec![0usize];
     let mut used = vec![false; n + 1];
     used[0] = true;
-    let mut remaining: Vec<usize> = (1..=n).collect();
-    let mut slot: Vec<usize> = (0..=n).map(|i| i.saturating_sub(1)).collect();
+    grid.remove(&p, 0);
+    let mut stamp = vec![usize::MAX; n + 1];
     for _ in 0..n {
         let last = path[path.len() - 1];
-        let next = nb[last]
-            .iter()
-            .copied()
-            .find(|&b| !used[b])
-            .or_else(|| {
-                remaining
-                    .iter()
-                    .copied()
-                    .min_by(|&x, &y| p.d(last, x).total_cmp(&p.d(last, y)))
-            })
-            .unwrap_or(0);
+        let next = nb[last].iter().map(|&(_, b)| b).find(|&b| !used[b]).or_else(|| {
+            grid.nearest(&p, last, 1, &mut stamp, |j| !used[j])
+                .first()
+                .map(|&(_, j)| j)
+        });
+        // Every unvisited point is filed in the grid, so the search finds one while any remain.
+        let Some(next) = next else { break };
         used[next] = true;
-        // O(1) removal from `remaining`, keeping `slot` in step.
-        let at = slot[next];
-        remaining.swap_remove(at);
-        if let Some(&moved) = remaining.get(at) {
-            slot[moved] = at;
-        }
+        grid.remove(&p, next);
         path.push(next);
     }
     local_search(&p, &nb, &mut path);
     Ordered {
         perm: path[1..].iter().map(|&i| i - 1).collect(),
-        bound: degree_bound(&p, &nb),
+        bound: degree_bound(&nb),
     }
 }
 
@@ -319,14 +375,14 @@ pub fn optimise(cfg: &InstrumentConfig<f64>, start: &Candidates, items: &[Candid
 /// Two distinct edges at an item are at least its nearest and second-nearest item distances d1 + d2,
 /// and the path's item edges are half the sum of every item's, so
 ///   length >= 1/2 (sum over items of (d1 + d2) - the two largest d2).
-/// d1, d2 come from the exact neighbour lists (`Points::neighbours`, start point left out), so the
+/// d1, d2 come from the exact neighbour lists (`PoseGrid::nearest`, start point left out), so the
 /// bound costs nothing beyond the ordering; it is the degree relaxation of the path (every vertex
 /// keeps its two cheapest edges), usually tighter than the minimum spanning tree on grid-like sets.
-fn degree_bound(p: &Points, nb: &[Vec<usize>]) -> f64 {
+fn degree_bound(nb: &[Vec<(f64, usize)>]) -> f64 {
     let mut sum = 0.0;
     let mut largest_d2 = [0.0f64; 2];
-    for (v, list) in nb.iter().enumerate().skip(1) {
-        let mut near = list.iter().copied().filter(|&w| w != 0).map(|w| p.d(v, w));
+    for list in nb.iter().skip(1) {
+        let mut near = list.iter().filter(|&&(_, w)| w != 0).map(|&(d, _)| d);
         let d1 = near.next().unwrap_or(0.0);
         // Guard: an item with a single other item has no second edge (n = 2): d2 = 0.
         let d2 = near.next().unwrap_or(0.0);
@@ -348,7 +404,7 @@ fn edge(p: &Points, path: &[usize], a: usize) -> f64 {
     }
 }
 
-fn local_search(p: &Points, nb: &[Vec<usize>], path: &mut Vec<usize>) {
+fn local_search(p: &Points, nb: &[Vec<(f64, usize)>], path: &mut Vec<usize>) {
     let len = path.len();
     let mut pos = vec![0usize; len];
     let reindex = |path: &[usize], pos: &mut [usize]| {
@@ -377,13 +433,14 @@ fn local_search(p: &Points, nb: &[Vec<usize>], path: &mut Vec<usize>) {
                 continue;
             }
             let mut moved = false;
-            for &c in &nb[path[a]] {
+            let edge_a = edge(p, path, a);
+            for &(d_ac, c) in &nb[path[a]] {
                 let b = pos[c];
                 if b <= a + 1 {
                     continue;
                 }
-                let old = edge(p, path, a) + edge(p, path, b);
-                let new = p.d(path[a], path[b])
+                let old = edge_a + edge(p, path, b);
+                let new = d_ac
                     + if b + 1 < len {
                         p.d(path[a + 1], path[b + 1])
                     } else {
@@ -423,16 +480,18 @@ fn local_search(p: &Points, nb: &[Vec<usize>], path: &mut Vec<usize>) {
                 let removed_gain =
                     p.d(prev, first) + next.map_or(0.0, |x| p.d(last, x)) - next.map_or(0.0, |x| p.d(prev, x));
                 let mut best: Option<(f64, usize, bool)> = None;
-                for &c in &nb[first] {
+                for &(d_cf, c) in &nb[first] {
                     let j = pos[c];
                     if (i..i + s).contains(&j) || j + 1 == i {
                         continue;
                     }
                     // Insert between path[j] and path[j + 1] (or at the end).
                     let after = path.get(j + 1).copied().filter(|&x| x != first);
-                    for reversed in [false, true] {
-                        let (h, t) = if reversed { (last, first) } else { (first, last) };
-                        let add = p.d(c, h) + after.map_or(0.0, |x| p.d(t, x)) - after.map_or(0.0, |x| p.d(c, x));
+                    let d_c_after = after.map_or(0.0, |x| p.d(c, x));
+                    // A single node has one orientation.
+                    for reversed in [false, true].into_iter().take(if s == 1 { 1 } else { 2 }) {
+                        let (d_ch, t) = if reversed { (p.d(c, last), first) } else { (d_cf, last) };
+                        let add = d_ch + after.map_or(0.0, |x| p.d(t, x)) - d_c_after;
                         let gain = removed_gain - add;
                         if gain > MIN_GAIN && best.is_none_or(|(g, _, _)| gain > g) {
                             best = Some((gain, j, reversed));
@@ -579,15 +638,68 @@ mod tests {
             cfg: &cfg,
             pts: items.iter().collect(),
         };
-        let nb = p.neighbours();
+        let nb = p.neighbours(&PoseGrid::new(&p));
         for (a, list) in nb.iter().enumerate() {
             let mut all: Vec<f64> = (0..items.len()).filter(|&b| b != a).map(|b| p.d(a, b)).collect();
             all.sort_by(f64::total_cmp);
-            let got: Vec<f64> = list.iter().map(|&b| p.d(a, b)).collect();
+            let got: Vec<f64> = list.iter().map(|&(d, _)| d).collect();
+            for &(d, b) in list {
+                assert_eq!(d, p.d(a, b), "point {a}: stored distance to {b}");
+            }
             assert_eq!(got.len(), NEIGHBOURS);
             for (g, w) in got.iter().zip(&all) {
                 assert!((g - w).abs() < 1e-12, "point {a}: {got:?} vs {:?}", &all[..NEIGHBOURS]);
             }
         }
+    }
+
+    /// The nearest-neighbour fallback's search (the grid with visited points taken out) finds the
+    /// nearest of the points left, as a full scan does, however many have been taken out.
+    #[test]
+    fn the_grid_finds_the_nearest_point_left() {
+        let cfg = default_instrument();
+        let kin = Kinematics::new(cfg).expect("kin");
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let mut items = Vec::new();
+        while items.len() < 300 {
+            let wi = from_spherical(rng.random::<f64>() * 1.5, 0.0);
+            let wo = from_spherical(rng.random::<f64>() * 1.5, rng.random::<f64>() * TAU);
+            if let Ok(c) = Candidates::of(&kin, wi, wo) {
+                items.push(c);
+            }
+        }
+        let p = Points {
+            cfg: &cfg,
+            pts: items.iter().collect(),
+        };
+        let mut grid = PoseGrid::new(&p);
+        let mut gone = vec![false; items.len()];
+        let mut stamp = vec![usize::MAX; items.len()];
+        // Take points out in a random order; after each, query from a random point.
+        let mut checked = 0;
+        for _ in 0..items.len() - 1 {
+            let i = rng.random_range(0..items.len());
+            if !gone[i] {
+                gone[i] = true;
+                grid.remove(&p, i);
+            }
+            let q = rng.random_range(0..items.len());
+            let want = (0..items.len())
+                .filter(|&j| !gone[j] && j != q)
+                .map(|j| p.d(q, j))
+                .fold(f64::INFINITY, f64::min);
+            // Fresh stamps per query: the same q may come twice here, unlike in `optimise`.
+            stamp.iter_mut().for_each(|s| *s = usize::MAX);
+            let got = grid.nearest(&p, q, 1, &mut stamp, |j| !gone[j] && j != q);
+            match got.first() {
+                Some(&(d, j)) => {
+                    assert!(!gone[j] && j != q);
+                    assert_eq!(d, want, "query {q}: nearest left {d} vs full scan {want}");
+                    checked += 1;
+                }
+                None => assert!(want.is_infinite(), "query {q}: nothing found, full scan {want}"),
+            }
+        }
+        assert!(checked > 100, "only {checked} queries had a point left");
     }
 }
