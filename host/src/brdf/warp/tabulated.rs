@@ -205,19 +205,23 @@ impl MixtureWarp {
         let mut fcos = vec![0.0; nx * ny];
         let mut valid = vec![0.0; nx * ny];
         let mut angles = vec![0.0; nx * ny];
-        for (iy, &y) in ys.iter().enumerate() {
-            for (ix, &x) in xs.iter().enumerate() {
-                if let Some(wo) = base.sample(DVec2::new(x, y)) {
-                    let p = base.pdf(wo);
-                    let g = luminance(estimate.eval(wi, wo)).max(0.0) * wo.z;
-                    // p > 0 wherever the base lands above the horizon except on the rim, where the
-                    // ratio has no value: such a vertex carries only the specular share.
-                    if p > 0.0 && g.is_finite() {
-                        fcos[iy * nx + ix] = g / p;
-                        angles[iy * nx + ix] = UniformAngles.pdf(wo) / p;
-                    }
-                    valid[iy * nx + ix] = 1.0;
+        let wos: Vec<Option<DVec3>> = ys
+            .iter()
+            .flat_map(|&y| xs.iter().map(move |&x| (x, y)))
+            .map(|(x, y)| base.sample(DVec2::new(x, y)))
+            .collect();
+        for iy in 0..ny {
+            for ix in 0..nx {
+                let Some(wo) = wos[iy * nx + ix] else { continue };
+                let p = base.pdf(wo);
+                let g = luminance(estimate.eval(wi, wo)).max(0.0) * wo.z;
+                // p > 0 wherever the base lands above the horizon except on the rim, where the
+                // ratio has no value: such a vertex carries only the specular share.
+                if p > 0.0 && g.is_finite() {
+                    fcos[iy * nx + ix] = g / p;
+                    angles[iy * nx + ix] = pole_guarded_angles_pdf(wo, wos[iy * nx + (ix + 1).min(nx - 1)]) / p;
                 }
+                valid[iy * nx + ix] = 1.0;
             }
         }
         let integral = |v: &[f64]| -> f64 {
@@ -269,6 +273,23 @@ impl MixtureWarp {
             .invert(wo)
             .map(|v| self.table.invert(v))
     }
+}
+
+/// The equal-angle density at a table vertex `wo`, read as the mean over the vertex's own cell near
+/// the pole. Guard: 1 / sin theta is integrable but has no value at theta = 0, and at normal
+/// incidence the vertices of the first column sit exactly on the pole (u.x = 0 is wo = z); a
+/// pointwise value there (1e11 at `UNIFORM_MIN_SIN`) made the equal-angle share's normalising
+/// integral all pole, so half the mixture's mass (w_u) collapsed into the first cell and every node
+/// of the normal-incidence slice landed within 10 deg of the normal. Over a cap of radius d the
+/// mean of 1 / sin theta is about 2 / d, so sin theta is held at half the angle to the next
+/// vertex along x (`next`); away from the pole nothing changes.
+fn pole_guarded_angles_pdf(wo: DVec3, next: Option<DVec3>) -> f64 {
+    if !(wo.z > 0.0) || !wo.is_finite() {
+        return 0.0;
+    }
+    let spacing = next.map_or(0.0, |n| wo.dot(n).clamp(-1.0, 1.0).acos());
+    let s = theta_of(wo).sin().max(0.5 * spacing).max(UNIFORM_MIN_SIN);
+    1.0 / (PI * PI * s)
 }
 
 /// Table x vertices: half equally spaced in the visible-normal warp's u.x, half equally spaced in the
@@ -550,5 +571,36 @@ mod tests {
         let (fm, fs) = (far(&mix), far(&spec));
         println!("share of samples > 20 deg from the mirror direction: mixture {fm:.3}, vndf {fs:.3}");
         assert!(fm > 0.12 && fs < 0.05, "mixture {fm}, vndf {fs}");
+    }
+
+    /// At normal incidence the first column of table vertices sits on the pole of the equal-angle
+    /// density (1 / sin theta): read pointwise, it took the whole equal-angle share and put 90% of
+    /// u within 10 deg of the normal. The share of samples far from the mirror direction must be
+    /// the same at theta_i = 0 as just off it (the extremes the guard is for: 0, 1e-6, 1e-3).
+    #[test]
+    fn mixture_is_continuous_at_normal_incidence() {
+        let (_, mat, alpha) = materials()[0].clone();
+        let far_share = |theta: f64| {
+            let wi = from_spherical(theta, 0.0);
+            let mix = MixtureWarp::new(wi, alpha, &mat, 33);
+            let mirror = DVec3::new(-wi.x, -wi.y, wi.z);
+            let n = 100;
+            let mut far = 0;
+            for a in 0..n {
+                for b in 0..n {
+                    let u = DVec2::new((a as f64 + 0.5) / n as f64, (b as f64 + 0.5) / n as f64);
+                    if mix.sample(u).is_some_and(|wo| wo.dot(mirror) < 20f64.to_radians().cos()) {
+                        far += 1;
+                    }
+                }
+            }
+            far as f64 / (n * n) as f64
+        };
+        let shares: Vec<f64> = [0.0, 1e-6, 1e-3, 0.05].into_iter().map(far_share).collect();
+        println!("share > 20 deg from the mirror at theta_i 0 / 1e-6 / 1e-3 / 0.05: {shares:.3?}");
+        for &s in &shares {
+            assert!(s > 0.3, "{shares:?}");
+            assert!((s - shares[3]).abs() < 0.03, "{shares:?}");
+        }
     }
 }
