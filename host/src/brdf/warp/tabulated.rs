@@ -589,7 +589,10 @@ mod tests {
             for a in 0..n {
                 for b in 0..n {
                     let u = DVec2::new((a as f64 + 0.5) / n as f64, (b as f64 + 0.5) / n as f64);
-                    if mix.sample(u).is_some_and(|wo| wo.dot(mirror) < 20f64.to_radians().cos()) {
+                    if mix
+                        .sample(u)
+                        .is_some_and(|wo| wo.dot(mirror) < 20f64.to_radians().cos())
+                    {
                         far += 1;
                     }
                 }
