@@ -530,8 +530,8 @@ mod tests {
     #[test]
     fn two_azimuth_nodes_interpolate_as_a_cosine() {
         let (r0, r1) = (DVec3::new(1.0, 2.0, -3.0), DVec3::new(5.0, -1.0, 0.5));
-        let mut grid =
-            MeasurementGrid::new(WarpKind::Cosine, vec![0.0], 2, 2, vec![DVec3::ZERO; 4], vec![false; 4]).expect("grid");
+        let mut grid = MeasurementGrid::new(WarpKind::Cosine, vec![0.0], 2, 2, vec![DVec3::ZERO; 4], vec![false; 4])
+            .expect("grid");
         for i in 0..2 {
             grid.set_node(0, i, 0, Some(r0));
             grid.set_node(0, i, 1, Some(r1));
@@ -543,8 +543,8 @@ mod tests {
             let got = grid.bilinear(0, DVec2::new(0.0, uy)).expect("valid nodes");
             assert!((got - want).abs().max_element() < 1e-12, "u.y {uy}: {got} vs {want}");
         }
-        let mut grid =
-            MeasurementGrid::new(WarpKind::Cosine, vec![0.0], 2, 4, vec![DVec3::ZERO; 8], vec![false; 8]).expect("grid");
+        let mut grid = MeasurementGrid::new(WarpKind::Cosine, vec![0.0], 2, 4, vec![DVec3::ZERO; 8], vec![false; 8])
+            .expect("grid");
         for i in 0..2 {
             for j in 0..4 {
                 grid.set_node(0, i, j, Some(if j == 0 { r0 } else { r1 }));
@@ -553,7 +553,10 @@ mod tests {
         let mid = grid.bilinear(0, DVec2::new(0.0, 0.125)).expect("valid nodes");
         assert!((mid - 0.5 * (r0 + r1)).abs().max_element() < 1e-12, "{mid}");
         let quarter = grid.bilinear(0, DVec2::new(0.0, 0.0625)).expect("valid nodes");
-        assert!((quarter - (0.75 * r0 + 0.25 * r1)).abs().max_element() < 1e-12, "{quarter}");
+        assert!(
+            (quarter - (0.75 * r0 + 0.25 * r1)).abs().max_element() < 1e-12,
+            "{quarter}"
+        );
     }
 
     #[test]
