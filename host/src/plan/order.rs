@@ -565,6 +565,20 @@ mod tests {
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
+    /// `n` random directions this instrument reaches: wi in the phi = 0 plane and wo anywhere, both
+    /// with theta below `max_theta`.
+    fn reachable_items(kin: &Kinematics<f64>, rng: &mut ChaCha8Rng, n: usize, max_theta: f64) -> Vec<Candidates> {
+        let mut items = Vec::new();
+        while items.len() < n {
+            let wi = from_spherical(rng.random::<f64>() * max_theta, 0.0);
+            let wo = from_spherical(rng.random::<f64>() * max_theta, rng.random::<f64>() * TAU);
+            if let Ok(c) = Candidates::of(kin, wi, wo) {
+                items.push(c);
+            }
+        }
+        items
+    }
+
     /// The degree bound never exceeds the shortest open path through the items from any entry
     /// (brute force over every order), on random small sets; printed beside the MST bound.
     #[test]
@@ -575,14 +589,7 @@ mod tests {
         let start = Candidates(vec![kin.rest_pose()]);
         for trial in 0..40 {
             let n = 2 + trial % 6;
-            let mut items = Vec::new();
-            while items.len() < n {
-                let wi = from_spherical(rng.random::<f64>() * 1.4, 0.0);
-                let wo = from_spherical(rng.random::<f64>() * 1.4, rng.random::<f64>() * TAU);
-                if let Ok(c) = Candidates::of(&kin, wi, wo) {
-                    items.push(c);
-                }
-            }
+            let items = reachable_items(&kin, &mut rng, n, 1.4);
             let bound = optimise(&cfg, &start, &items).bound;
             // Shortest open path over every permutation (Heap's algorithm), entry edge free.
             let mut perm: Vec<usize> = (0..n).collect();
@@ -626,14 +633,7 @@ mod tests {
         let cfg = default_instrument();
         let kin = Kinematics::new(cfg).expect("kin");
         let mut rng = ChaCha8Rng::seed_from_u64(3);
-        let mut items = Vec::new();
-        while items.len() < 400 {
-            let wi = from_spherical(rng.random::<f64>() * 1.5, 0.0);
-            let wo = from_spherical(rng.random::<f64>() * 1.5, rng.random::<f64>() * TAU);
-            if let Ok(c) = Candidates::of(&kin, wi, wo) {
-                items.push(c);
-            }
-        }
+        let items = reachable_items(&kin, &mut rng, 400, 1.5);
         let p = Points {
             cfg: &cfg,
             pts: items.iter().collect(),
@@ -660,14 +660,7 @@ mod tests {
         let cfg = default_instrument();
         let kin = Kinematics::new(cfg).expect("kin");
         let mut rng = ChaCha8Rng::seed_from_u64(11);
-        let mut items = Vec::new();
-        while items.len() < 300 {
-            let wi = from_spherical(rng.random::<f64>() * 1.5, 0.0);
-            let wo = from_spherical(rng.random::<f64>() * 1.5, rng.random::<f64>() * TAU);
-            if let Ok(c) = Candidates::of(&kin, wi, wo) {
-                items.push(c);
-            }
-        }
+        let items = reachable_items(&kin, &mut rng, 300, 1.5);
         let p = Points {
             cfg: &cfg,
             pts: items.iter().collect(),

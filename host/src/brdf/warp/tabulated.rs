@@ -284,12 +284,17 @@ impl MixtureWarp {
 /// mean of 1 / sin theta is about 2 / d, so sin theta is held at half the angle to the next
 /// vertex along x (`next`); away from the pole nothing changes.
 fn pole_guarded_angles_pdf(wo: DVec3, next: Option<DVec3>) -> f64 {
+    let spacing = next.map_or(0.0, |n| wo.dot(n).clamp(-1.0, 1.0).acos());
+    angles_pdf(wo, (0.5 * spacing).max(UNIFORM_MIN_SIN))
+}
+
+/// The equal-angle density 1 / (pi^2 sin theta) per solid angle with sin theta held at `min_sin`
+/// or above (its pole guard); 0 at and below the horizon.
+fn angles_pdf(wo: DVec3, min_sin: f64) -> f64 {
     if !(wo.z > 0.0) || !wo.is_finite() {
         return 0.0;
     }
-    let spacing = next.map_or(0.0, |n| wo.dot(n).clamp(-1.0, 1.0).acos());
-    let s = theta_of(wo).sin().max(0.5 * spacing).max(UNIFORM_MIN_SIN);
-    1.0 / (PI * PI * s)
+    1.0 / (PI * PI * theta_of(wo).sin().max(min_sin))
 }
 
 /// Table x vertices: half equally spaced in the visible-normal warp's u.x, half equally spaced in the
@@ -350,11 +355,7 @@ impl Warp for UniformAngles {
         ))
     }
     fn pdf(&self, wo: DVec3) -> f64 {
-        if !(wo.z > 0.0) || !wo.is_finite() {
-            return 0.0;
-        }
-        let s = theta_of(wo).sin().max(UNIFORM_MIN_SIN);
-        1.0 / (PI * PI * s)
+        angles_pdf(wo, UNIFORM_MIN_SIN)
     }
 }
 
