@@ -6,10 +6,13 @@
 //! paints brighten there far more than a Fresnel-free GGX lobe can, and without it the residual
 //! grid had to carry the whole grazing rise across coarse cells.
 //!
+//! The diffuse base is two non-negative terms, a Lambert one and a coated one that darkens toward
+//! grazing (`coated_diffuse_shape`); the fit picks their mix per channel.
+//!
 //! Loss: as `fit::fit_samples`, the weighted least squares on log(1 + f cos theta_o). For a pair
-//! of roughnesses (alpha_sharp < alpha_broad) the five non-negative coefficients per channel (kd,
-//! and two per lobe: its plain and its Fresnel-rising column) enter linearly inside the log:
-//! projected Gauss-Newton, each step an exact five-variable non-negative least squares (every
+//! of roughnesses (alpha_sharp < alpha_broad) the six non-negative coefficients per channel (kd,
+//! two per lobe: its plain and its Fresnel-rising column, and kc) enter linearly inside the log:
+//! projected Gauss-Newton, each step an exact six-variable non-negative least squares (every
 //! active set tried). The roughness pair is searched on a log grid over [2e-3, 1] with the broad
 //! lobe at least `MIN_RATIO` times rougher, so the two lobes cannot both describe one feature.
 
@@ -40,8 +43,8 @@ pub const F0_MIN: f64 = 0.02;
 /// Lambert term cannot, so a grazing sample would cap the diffuse below the whole rest.
 const CAP_MIN_COS: f64 = 0.17364817766693041; // cos 80 deg
 
-/// Lambert plus two GGX lobes (Smith masking; `analytic::ggx_specular`), each with a Schlick
-/// Fresnel rise from its normal-incidence colour ks to its grazing colour kg.
+/// Lambert plus a coated diffuse term plus two GGX lobes (Smith masking; `analytic::ggx_specular`),
+/// each lobe with a Schlick Fresnel rise from its normal-incidence colour ks to its grazing colour kg.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TwoLobes {
     pub diffuse: DVec3,
@@ -54,6 +57,22 @@ pub struct TwoLobes {
     /// ks <= kg <= ks / `F0_MIN`.
     pub sharp_grazing: DVec3,
     pub broad_grazing: DVec3,
+    /// A second diffuse term, `coated_diffuse_shape` times kc / pi: the diffuse under a clear
+    /// coat, which darkens toward grazing as the coat reflects more of the light (zero: none).
+    pub coated: DVec3,
+}
+
+/// The grazing falloff of a diffuse base under a smooth coat (Ashikhmin and Shirley 2000:
+/// (1 - (1 - cos theta / 2)^5) per direction), normalised to 1 at normal incidence: 1 at
+/// theta_i = theta_o = 0, 0 when either direction is at the horizon. Why: the Lambert term cannot
+/// darken toward grazing, and the MERL plastics and paints do. Where no node is (beyond the last
+/// ring of a coarse level, where the residual is held) the prior's shape is all there is, and a
+/// flat Lambert there left the rim of the capture sphere too bright (docs/tradeoff/README.md).
+pub fn coated_diffuse_shape(wi: DVec3, wo: DVec3) -> f64 {
+    // 1 - (1/2)^5 at normal incidence; cos is clamped to [0, 1], so the shape is in [0, 1].
+    const NORMAL: f64 = 1.0 - 1.0 / 32.0;
+    let f = |c: f64| (1.0 - (1.0 - 0.5 * c.clamp(0.0, 1.0)).powi(5)) / NORMAL;
+    f(wi.z) * f(wo.z)
 }
 
 /// Schlick's Fresnel weight (1 - wi.h)^5 of the pair; 0 without a half vector.
@@ -69,8 +88,9 @@ impl TwoLobes {
     pub fn describe(&self) -> String {
         let c = |v: DVec3| format!("{:.3}/{:.3}/{:.3}", v.x, v.y, v.z);
         format!(
-            "lambert {} + ggx(alpha {:.4}) {} grazing {} + ggx(alpha {:.4}) {} grazing {}",
+            "lambert {} + coated diffuse {} + ggx(alpha {:.4}) {} grazing {} + ggx(alpha {:.4}) {} grazing {}",
             c(self.diffuse),
+            c(self.coated),
             self.sharp_alpha,
             c(self.sharp),
             c(self.sharp_grazing),
@@ -90,6 +110,7 @@ impl Material for TwoLobes {
         // ks + (kg - ks) x, not ks (1 - x) + kg x: a lobe without rise (kg = ks) then evaluates to
         // exactly ks, bit for bit as before the rise existed (the encoder's two-lobe dataset).
         self.diffuse * FRAC_1_PI
+            + self.coated * (FRAC_1_PI * coated_diffuse_shape(wi, wo))
             + (self.sharp + (self.sharp_grazing - self.sharp) * x) * ggx_specular(wi, wo, self.sharp_alpha)
             + (self.broad + (self.broad_grazing - self.broad) * x) * ggx_specular(wi, wo, self.broad_alpha)
     }
@@ -209,6 +230,11 @@ pub fn fit_two_lobes_bounded(
         })
         .collect();
     let diffuse: Vec<f64> = cos_o.iter().map(|c| c * FRAC_1_PI).collect();
+    let coated: Vec<f64> = kept
+        .iter()
+        .zip(&cos_o)
+        .map(|(&(wi, wo), c)| c * FRAC_1_PI * coated_diffuse_shape(wi, wo))
+        .collect();
     // Each lobe enters as two columns, its GGX factor S and S (1 + (1/F0_MIN - 1) x) (x the
     // Schlick weight): non-negative coefficients (c0, c1) span exactly the lobes whose colour rises
     // from ks = c0 + c1 at normal incidence to kg = c0 + c1 / F0_MIN at grazing, ks <= kg <= ks / F0_MIN.
@@ -226,7 +252,7 @@ pub fn fit_two_lobes_bounded(
         LobeFresnel::None => Vec::new(),
     };
     let to_colours = |c0: f64, c1: f64| -> (f64, f64) { (c0 + c1, c0 + c1 / F0_MIN) };
-    let mut best: Option<(f64, usize, usize, [[f64; 5]; 3])> = None;
+    let mut best: Option<(f64, usize, usize, [[f64; 6]; 3])> = None;
     // Guard: a non-finite floor is no floor; one above the grid leaves only the roughest pair.
     let min_alpha = if min_alpha.is_finite() {
         min_alpha.min(ALPHA_MAX / MIN_RATIO)
@@ -242,8 +268,8 @@ pub fn fit_two_lobes_bounded(
             if alphas[b] < MIN_RATIO * alphas[s] {
                 continue;
             }
-            // coeffs[c] = [kd, ks_sharp, kg_sharp, ks_broad, kg_broad].
-            let mut coeffs = [[0.0; 5]; 3];
+            // coeffs[c] = [kd, ks_sharp, kg_sharp, ks_broad, kg_broad, kc].
+            let mut coeffs = [[0.0; 6]; 3];
             let mut loss = 0.0;
             for c in 0..3 {
                 let (x, l) = match fresnel {
@@ -254,16 +280,21 @@ pub fn fit_two_lobes_bounded(
                             &rising[s][..],
                             &basis[b][..],
                             &rising[b][..],
+                            &coated[..],
                         ];
                         let (x, l) = solve_capped(&cols, &target[c], &w, cap[c]);
                         let (ks, kg) = to_colours(x[1], x[2]);
                         let (bs, bg) = to_colours(x[3], x[4]);
-                        ([x[0], ks, kg, bs, bg], l)
+                        ([x[0], ks, kg, bs, bg, x[5]], l)
                     }
                     LobeFresnel::None => {
-                        let (x, l) =
-                            solve_capped(&[&diffuse[..], &basis[s][..], &basis[b][..]], &target[c], &w, cap[c]);
-                        ([x[0], x[1], x[1], x[2], x[2]], l)
+                        let (x, l) = solve_capped(
+                            &[&diffuse[..], &basis[s][..], &basis[b][..], &coated[..]],
+                            &target[c],
+                            &w,
+                            cap[c],
+                        );
+                        ([x[0], x[1], x[1], x[2], x[2], x[3]], l)
                     }
                 };
                 coeffs[c] = x;
@@ -285,6 +316,7 @@ pub fn fit_two_lobes_bounded(
                 broad: DVec3::new(x[0][3], x[1][3], x[2][3]),
                 sharp_grazing: DVec3::new(x[0][2], x[1][2], x[2][2]),
                 broad_grazing: DVec3::new(x[0][4], x[1][4], x[2][4]),
+                coated: DVec3::new(x[0][5], x[1][5], x[2][5]),
             },
             rms_log_error: (loss / (3.0 * total_w)).sqrt(),
         },
@@ -298,6 +330,7 @@ pub fn fit_two_lobes_bounded(
                 broad: DVec3::ZERO,
                 sharp_grazing: DVec3::ZERO,
                 broad_grazing: DVec3::ZERO,
+                coated: DVec3::ZERO,
             },
             rms_log_error: 0.0,
         },
@@ -531,6 +564,39 @@ mod tests {
         );
     }
 
+    /// The coated diffuse shape at its extremes: 1 at normal incidence both ways, 0 with either
+    /// direction at (or, clamped, below) the horizon, within [0, 1] and falling with either angle.
+    /// A material whose diffuse darkens that way comes back as the coated term, not as Lambert.
+    #[test]
+    fn a_coated_diffuse_base_is_recovered_as_one() {
+        use crate::brdf::frame::from_spherical;
+        let z = DVec3::Z;
+        assert!((coated_diffuse_shape(z, z) - 1.0).abs() < 1e-15);
+        let horizon = from_spherical(std::f64::consts::FRAC_PI_2, 0.3);
+        assert_eq!(coated_diffuse_shape(z, horizon), 0.0);
+        assert_eq!(coated_diffuse_shape(DVec3::new(1.0, 0.0, -0.1).normalize(), z), 0.0);
+        let mut last = 1.0;
+        for deg in [10.0, 30.0, 60.0, 80.0, 89.0, 90.0] {
+            let v = coated_diffuse_shape(z, from_spherical(f64::to_radians(deg), 0.0));
+            assert!((0.0..=last).contains(&v), "{deg}: {v}");
+            last = v;
+        }
+        let truth = TwoLobes {
+            diffuse: DVec3::ZERO,
+            sharp_alpha: alpha_grid(5),
+            sharp: DVec3::splat(0.3),
+            broad_alpha: alpha_grid(15),
+            broad: DVec3::splat(0.1),
+            sharp_grazing: DVec3::splat(0.3),
+            broad_grazing: DVec3::splat(0.1),
+            coated: DVec3::new(0.6, 0.4, 0.2),
+        };
+        let m = fit_unfloored(&truth).model;
+        assert_same_roughness(&m, &truth);
+        assert!((m.coated - truth.coated).abs().max_element() < 1e-3, "{}", m.describe());
+        assert!(m.diffuse.max_element() < 1e-3, "{}", m.describe());
+    }
+
     /// A Fresnel rise inside the bound comes back exactly; one beyond it is fitted at the bound,
     /// never above (every fitted lobe keeps ks <= kg <= ks / F0_MIN).
     #[test]
@@ -543,6 +609,7 @@ mod tests {
             broad: DVec3::splat(0.2),
             sharp_grazing: DVec3::new(0.2, 0.3, 0.4) * sharp_rise,
             broad_grazing: DVec3::splat(0.2 * 3.0),
+            coated: DVec3::ZERO,
         };
         let truth = lobes(10.0);
         let fit = fit_unfloored(&truth);
@@ -586,6 +653,7 @@ mod tests {
             broad: DVec3::splat(0.4),
             sharp_grazing: DVec3::splat(0.3),
             broad_grazing: DVec3::splat(0.4),
+            coated: DVec3::ZERO,
         };
         let pairs = fit_directions();
         let values: Vec<DVec3> = pairs.iter().map(|&(wi, wo)| truth.eval(wi, wo)).collect();
@@ -722,6 +790,7 @@ mod tests {
             broad: DVec3::new(0.5, 0.2, 0.1),
             sharp_grazing: DVec3::splat(0.3),
             broad_grazing: DVec3::new(0.5, 0.2, 0.1),
+            coated: DVec3::ZERO,
         }
     }
 

@@ -134,6 +134,7 @@ pub fn sample_two_lobes(rng: &mut ChaCha8Rng) -> TwoLobes {
         // No Fresnel rise: the family the shipped models were trained on.
         sharp_grazing: ks * ts,
         broad_grazing: kb * tb,
+        coated: DVec3::ZERO,
     }
 }
 

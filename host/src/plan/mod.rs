@@ -238,7 +238,8 @@ pub enum Prior {
     /// instead of having to describe its shape.
     Fit,
     /// As `Fit` with Lambert plus two GGX lobes (`brdf::fit_lobes`): a sharp peak and a broad halo,
-    /// the shape of most paints and plastics, each with a bounded Fresnel rise toward grazing.
+    /// the shape of most paints and plastics, each with a bounded Fresnel rise toward grazing, over
+    /// a diffuse base that may darken toward grazing (`fit_lobes::coated_diffuse_shape`).
     TwoLobes,
     /// `TwoLobes` without the Fresnel rise (the lobes keep one colour at every angle): the
     /// ablation that shows what the rise is worth (docs/tradeoff/README.md).
