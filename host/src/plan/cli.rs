@@ -89,8 +89,9 @@ pub struct TradeoffArgs {
     /// Material specs (repeatable); default: four MERL fits and two analytic lobes.
     #[arg(long = "material", value_name = "SPEC")]
     pub materials: Vec<String>,
-    /// A named run: table1 (the paper's Table 1), heldout (the encoder's 15 held-out MERL materials) or
-    /// training (14 MERL materials the encoder trained on, where the planner's constants are chosen).
+    /// A named run: table1 (the paper's Table 1), heldout (the encoder's 15 held-out MERL materials),
+    /// training (14 MERL materials the encoder trained on, where the planner's constants are chosen)
+    /// or training-pool (26 further training materials, mostly sharp: metals, phenolics, paints).
     #[arg(long, value_enum, conflicts_with = "materials")]
     pub preset: Option<tradeoff::Preset>,
     #[arg(long)]

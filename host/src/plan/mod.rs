@@ -269,7 +269,8 @@ pub enum FittedPrior {
 }
 
 impl FittedPrior {
-    fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
+    /// The fitted lobe's value (BRDF, 1/sr), without the grid's residual.
+    pub fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
         match self {
             FittedPrior::Lobe(m) => m.eval(wi, wo),
             FittedPrior::TwoLobes(m) => m.eval(wi, wo),

@@ -1,0 +1,194 @@
+//! Where a reconstruction's point-light FLIP comes from: the trade-off report's point-light render
+//! (`examples/sphere-point.toml` at 128 px, the `point` columns of `gonio tradeoff`) split into bands
+//! of the half-vector angle theta_h of each sphere pixel, for the `auto` plan (from the photo
+//! estimate, as `gonio tradeoff`'s `adaptive`) and the uniform grid at one level. Per band it prints
+//! the band's share of the mean FLIP (the shares sum to the mean) and the mean luminance of the truth
+//! and of the reconstruction; then the profile of f cos theta_i along the plane of the light and the
+//! camera (truth, each reconstruction, and its fitted prior without the residual grid).
+//!
+//!     cargo run --release -p gonio --example flip_bands [LEVEL] [--maps DIR] [MATERIAL ...]
+//!
+//! LEVEL 1 is the 2x2 level (default); materials default to two held-out metallic paints. With
+//! `--maps DIR` the FLIP maps and the renders (sRGB) are written there as PNGs. Used in
+//! docs/tradeoff/README.md to locate the 2x2 point-light FLIP loss (the shoulder, theta_h 4-15 deg).
+
+use anyhow::{bail, Context};
+use glam::DVec3;
+use gonio::brdf::{parse_material, Material};
+use gonio::encoder::infer::Encoder;
+use gonio::encoder::ModelKind;
+use gonio::plan::report::Scorer;
+use gonio::plan::tradeoff::photo_estimate;
+use gonio::plan::{FittedPrior, PlanConfig, Planner, Strategy};
+use gonio::render::scene::{DeltaLight, Scene};
+
+/// Band edges in theta_h (degrees); the last band holds pixels facing away from the half vector.
+const EDGES: [f64; 11] = [0.0, 2.0, 4.0, 7.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0, 180.0];
+/// Side of the point-light render, as `gonio tradeoff`'s default `--size`.
+const SIZE: usize = 128;
+
+fn luminance(v: DVec3) -> f64 {
+    gonio::brdf::frame::luminance(v)
+}
+
+/// The fitted prior alone, as a material.
+struct PriorOnly(FittedPrior);
+impl Material for PriorOnly {
+    fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
+        self.0.eval(wi, wo)
+    }
+}
+
+fn main() -> anyhow::Result<()> {
+    let mut args = std::env::args().skip(1);
+    let level: usize = args
+        .next()
+        .map(|a| a.parse())
+        .transpose()
+        .context("LEVEL")?
+        .unwrap_or(1);
+    let mut materials: Vec<String> = Vec::new();
+    let mut maps: Option<std::path::PathBuf> = None;
+    while let Some(a) = args.next() {
+        if a == "--maps" {
+            maps = Some(args.next().context("--maps needs a folder")?.into());
+        } else {
+            materials.push(a);
+        }
+    }
+    if let Some(dir) = &maps {
+        std::fs::create_dir_all(dir)?;
+    }
+    if materials.is_empty() {
+        materials = vec!["nbrdf:red-metallic-paint".into(), "nbrdf:blue-metallic-paint2".into()];
+    }
+    // The scorer renders this scene; its one point light gives each pixel's light direction.
+    let scene = Scene::load(std::path::Path::new("examples/sphere-point.toml"))?;
+    let Some(DeltaLight::Point { position, .. }) = scene.lights.first().cloned() else {
+        bail!("examples/sphere-point.toml: expected one point light");
+    };
+    let encoder = Encoder::shipped(ModelKind::Ggx)?;
+    let instrument = gonio::instrument::default_instrument();
+    let mut scorer = Scorer::new(SIZE)?;
+    for spec in &materials {
+        let truth = parse_material(spec)?;
+        let (estimate, _) = photo_estimate(spec, &encoder)?;
+        println!("== {spec} (photo estimate {})", estimate.model.to_spec());
+        let truth_img = scorer.render(parse_material(spec)?);
+        let mut profiles: Vec<(String, Box<dyn Material>)> = Vec::new();
+        for strategy in [Strategy::Auto, Strategy::Uniform] {
+            let config = PlanConfig {
+                strategy,
+                ..PlanConfig::default()
+            };
+            let plan = Planner::new(instrument, estimate.clone())?.plan(&config)?;
+            let rec = plan.reconstruct(level, &plan.measure(truth.as_ref()))?;
+            let summary = plan.level(level).context("no such level")?;
+            let img = scorer.render(Box::new(rec.clone()));
+            let (c, map) = gonio::render::metrics::compare(&truth_img, &img)?;
+            let prior = rec.prior().cloned();
+            if let Some(dir) = &maps {
+                let stem = format!("{}-{}-{level}", spec.replace(':', "_"), plan.warp);
+                map.write_png(&dir.join(format!("{stem}-flip.png")))?;
+                img.write(&dir.join(format!("{stem}.png")))?;
+                truth_img.write(&dir.join(format!("{}-truth.png", spec.replace(':', "_"))))?;
+            }
+            println!(
+                "{} {}x{} ({} directions): mean FLIP {:.4}; prior {}",
+                plan.warp,
+                summary.n,
+                summary.m,
+                summary.cumulative_directions,
+                c.flip,
+                prior.as_ref().map(|p| p.describe()).unwrap_or_else(|| "none".into())
+            );
+            let bands = EDGES.len() - 1;
+            let (mut share, mut count) = (vec![0.0; bands], vec![0usize; bands]);
+            let (mut sum_t, mut sum_r) = (vec![DVec3::ZERO; bands], vec![DVec3::ZERO; bands]);
+            let total = (map.width * map.height) as f64;
+            let mut outside = 0.0;
+            for py in 0..map.height {
+                for px in 0..map.width {
+                    let idx = py * map.width + px;
+                    let e = map.errors[idx] as f64;
+                    // The orthographic camera spans x, y in [-1, 1], row 0 at +y (the scene file).
+                    let x = (px as f64 + 0.5) / map.width as f64 * 2.0 - 1.0;
+                    let y = 1.0 - (py as f64 + 0.5) / map.height as f64 * 2.0;
+                    let r2 = x * x + y * y;
+                    if r2 >= 1.0 {
+                        outside += e;
+                        continue;
+                    }
+                    let n = DVec3::new(x, y, (1.0 - r2).sqrt());
+                    let h = ((position - n).normalize() + DVec3::Z).normalize();
+                    let theta_h = n.dot(h).clamp(-1.0, 1.0).acos().to_degrees();
+                    let b = EDGES[1..].iter().position(|&edge| theta_h < edge).unwrap_or(bands - 1);
+                    share[b] += e / total;
+                    count[b] += 1;
+                    sum_t[b] += truth_img.pixels[idx];
+                    sum_r[b] += img.pixels[idx];
+                }
+            }
+            // The bands and the background partition the image, so the shares sum to the mean.
+            let sum = share.iter().sum::<f64>() + outside / total;
+            if (sum - c.flip).abs() > 1e-9 {
+                bail!("band shares sum to {sum}, the mean FLIP is {}", c.flip);
+            }
+            println!("  theta_h (deg)  pixels  FLIP share  truth lum  rec lum  rec/truth R G B");
+            for b in 0..bands {
+                if count[b] == 0 {
+                    continue;
+                }
+                let k = count[b] as f64;
+                let ratio = sum_r[b] / sum_t[b].max(DVec3::splat(f64::MIN_POSITIVE));
+                println!(
+                    "  {:>5}-{:<6} {:>7}  {:>10.5}  {:>9.4}  {:>7.4}  {:.2} {:.2} {:.2}",
+                    EDGES[b],
+                    EDGES[b + 1],
+                    count[b],
+                    share[b],
+                    luminance(sum_t[b]) / k,
+                    luminance(sum_r[b]) / k,
+                    ratio.x,
+                    ratio.y,
+                    ratio.z
+                );
+            }
+            println!("  background: FLIP share {:.5}", outside / total);
+            let name = plan.warp.to_string();
+            profiles.push((name.clone(), Box::new(rec)));
+            if let Some(p) = prior {
+                profiles.push((format!("{name} prior"), Box::new(PriorOnly(p))));
+            }
+        }
+        // In the plane of the light and the camera: the normal at angle a from the view axis toward
+        // the light, theta_h = |a - a_h| with a_h the half vector's angle (for a distant light).
+        let l = position.normalize();
+        let axis = DVec3::new(l.x, l.y, 0.0).normalize();
+        let a_h = (0.5 * l.z.clamp(-1.0, 1.0).acos()).to_degrees();
+        print!("  luminance of f cos theta_i in the plane of incidence\n  theta_h      truth");
+        for (name, _) in &profiles {
+            print!(" {name:>16}");
+        }
+        println!();
+        for dh in [
+            -45.0f64, -30.0, -15.0, -10.0, -6.0, -3.0, -1.0, 0.0, 1.0, 3.0, 6.0, 10.0, 15.0, 30.0, 45.0,
+        ] {
+            let a = (a_h + dh).to_radians();
+            let n = axis * a.sin() + DVec3::Z * a.cos();
+            let t = (DVec3::Z.cross(axis)).normalize();
+            let s = t.cross(n);
+            let local = |d: DVec3| DVec3::new(d.dot(s), d.dot(t), d.dot(n));
+            let (wi, wo) = (local(l), local(DVec3::Z));
+            if wi.z <= 0.0 || wo.z <= 0.0 {
+                continue;
+            }
+            print!("  {dh:>7.1} {:>10.5}", luminance(truth.eval(wi, wo)) * wi.z);
+            for (_, m) in &profiles {
+                print!(" {:>16.5}", luminance(m.eval(wi, wo)) * wi.z);
+            }
+            println!();
+        }
+    }
+    Ok(())
+}
