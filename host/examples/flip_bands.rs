@@ -2,8 +2,8 @@
 //! (`examples/sphere-point.toml` at 128 px, the `point` columns of `gonio tradeoff`) split into bands
 //! of the half-vector angle theta_h of each sphere pixel, for the `auto` plan (from the photo
 //! estimate, as `gonio tradeoff`'s `adaptive`) and the uniform grid at one level. Per band it prints
-//! the band's share of the mean FLIP (the shares sum to the mean) and the mean luminance of the truth
-//! and of the reconstruction; then the profile of f cos theta_i along the plane of the light and the
+//! the band's share of the mean FLIP (the shares sum to the mean), the mean luminance of the truth
+//! and of the reconstruction, and their ratio per channel; then the profile of f cos theta_i along the plane of the light and the
 //! camera (truth, each reconstruction, and its fitted prior without the residual grid).
 //!
 //!     cargo run --release -p gonio --example flip_bands [LEVEL] [--maps DIR] [MATERIAL ...]
@@ -14,6 +14,7 @@
 
 use anyhow::{bail, Context};
 use glam::DVec3;
+use gonio::brdf::frame::luminance;
 use gonio::brdf::{parse_material, Material};
 use gonio::encoder::infer::Encoder;
 use gonio::encoder::ModelKind;
@@ -26,10 +27,6 @@ use gonio::render::scene::{DeltaLight, Scene};
 const EDGES: [f64; 11] = [0.0, 2.0, 4.0, 7.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0, 180.0];
 /// Side of the point-light render, as `gonio tradeoff`'s default `--size`.
 const SIZE: usize = 128;
-
-fn luminance(v: DVec3) -> f64 {
-    gonio::brdf::frame::luminance(v)
-}
 
 /// The fitted prior alone, as a material.
 struct PriorOnly(FittedPrior);
@@ -62,8 +59,12 @@ fn main() -> anyhow::Result<()> {
     if materials.is_empty() {
         materials = vec!["nbrdf:red-metallic-paint".into(), "nbrdf:blue-metallic-paint2".into()];
     }
-    // The scorer renders this scene; its one point light gives each pixel's light direction.
-    let scene = Scene::load(std::path::Path::new("examples/sphere-point.toml"))?;
+    // The scorer renders this scene (the same file, built in); its one point light gives each
+    // pixel's light direction.
+    let scene = Scene::from_toml(
+        include_str!("../../examples/sphere-point.toml"),
+        std::path::Path::new("examples/sphere-point.toml"),
+    )?;
     let Some(DeltaLight::Point { position, .. }) = scene.lights.first().cloned() else {
         bail!("examples/sphere-point.toml: expected one point light");
     };
@@ -75,6 +76,9 @@ fn main() -> anyhow::Result<()> {
         let (estimate, _) = photo_estimate(spec, &encoder)?;
         println!("== {spec} (photo estimate {})", estimate.model.to_spec());
         let truth_img = scorer.render(parse_material(spec)?);
+        if let Some(dir) = &maps {
+            truth_img.write(&dir.join(format!("{}-truth.png", spec.replace(':', "_"))))?;
+        }
         let mut profiles: Vec<(String, Box<dyn Material>)> = Vec::new();
         for strategy in [Strategy::Auto, Strategy::Uniform] {
             let config = PlanConfig {
@@ -91,7 +95,6 @@ fn main() -> anyhow::Result<()> {
                 let stem = format!("{}-{}-{level}", spec.replace(':', "_"), plan.warp);
                 map.write_png(&dir.join(format!("{stem}-flip.png")))?;
                 img.write(&dir.join(format!("{stem}.png")))?;
-                truth_img.write(&dir.join(format!("{}-truth.png", spec.replace(':', "_"))))?;
             }
             println!(
                 "{} {}x{} ({} directions): mean FLIP {:.4}; prior {}",
@@ -166,6 +169,8 @@ fn main() -> anyhow::Result<()> {
         let l = position.normalize();
         let axis = DVec3::new(l.x, l.y, 0.0).normalize();
         let a_h = (0.5 * l.z.clamp(-1.0, 1.0).acos()).to_degrees();
+        // The plane's normal, and the tangent frame (s, t, n) of each in-plane surface normal n.
+        let t = DVec3::Z.cross(axis).normalize();
         print!("  luminance of f cos theta_i in the plane of incidence\n  theta_h      truth");
         for (name, _) in &profiles {
             print!(" {name:>16}");
@@ -176,7 +181,6 @@ fn main() -> anyhow::Result<()> {
         ] {
             let a = (a_h + dh).to_radians();
             let n = axis * a.sin() + DVec3::Z * a.cos();
-            let t = (DVec3::Z.cross(axis)).normalize();
             let s = t.cross(n);
             let local = |d: DVec3| DVec3::new(d.dot(s), d.dot(t), d.dot(n));
             let (wi, wo) = (local(l), local(DVec3::Z));
