@@ -349,7 +349,9 @@ fn query_lookup_and_log_interpolation_beat_the_plain_reconstruction_on_a_glossy_
 
 /// The fitted prior: measured on its own plan, an analytic lobe is recovered between nodes and
 /// between slices from the coarsest level, even when the estimate the plan was built from is off by
-/// 3x in alpha; at a node the reconstruction still returns the measurement.
+/// 3x in alpha. That level of this lobe-following plan is the fit alone (`level_keeps_residual`):
+/// the reconstruction equals its prior at every node. From the next level on, at a node the
+/// reconstruction returns the measurement.
 #[test]
 fn a_fitted_prior_recovers_a_lobe_the_grid_alone_cannot() {
     let truth = Ggx {
@@ -369,25 +371,45 @@ fn a_fitted_prior_recovers_a_lobe_the_grid_alone_cannot() {
             .expect("plan");
         let values = plan.measure(&truth);
         let rec = plan.reconstruct(1, &values).expect("rec");
+        assert_eq!(plan.layout(), crate::brdf::grid::NodeLayout::NestedFarRing);
+        // The level whose nodes must return their measurement: the first without a prior, else
+        // the second; with a prior the first is the prior itself at every node.
+        let exact_level = if prior == Prior::None {
+            1
+        } else {
+            let p = rec.prior().expect("a fitted prior");
+            for d in &plan.directions[..plan.level(1).expect("level").count] {
+                // Up to the round trip through the ratio residual's log.
+                let (r, f) = (rec.eval(d.wi, d.wo), p.eval(d.wi, d.wo));
+                assert!(
+                    (r - f).abs().max_element() <= 1e-12 * (1.0 + f.max_element()),
+                    "{prior}: level 1 is not its fit alone ({r} vs {f})"
+                );
+            }
+            2
+        };
+        let exact_rec = plan.reconstruct(exact_level, &values).expect("rec");
         // Nudged directions were measured off their node, so not every one can match.
-        let count = plan.level(1).expect("level").count;
+        let count = plan.level(exact_level).expect("level").count;
         let exact = plan
             .directions
             .iter()
             .zip(&values)
             .take(count)
-            .filter(|(d, v)| (rec.eval(d.wi, d.wo) - **v).abs().max_element() < 1e-9 * (1.0 + v.max_element()))
+            .filter(|(d, v)| (exact_rec.eval(d.wi, d.wo) - **v).abs().max_element() < 1e-9 * (1.0 + v.max_element()))
             .count();
         assert!(
             4 * exact >= 3 * count,
-            "{prior}: {exact} of {count} nodes return their measurement"
+            "{prior}: {exact} of {count} level-{exact_level} nodes return their measurement"
         );
         if prior == Prior::Fit {
             // Node values are BRDF values (not the log-space residuals the grid stores): with the
             // lobe recovered, each equals the truth at its node.
             for k in 0..plan.thetas.len() {
                 for (i, j) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                    if let (Some(v), Some((wi, wo))) = (rec.node_value(k, i, j), rec.grid().node_directions(k, i, j)) {
+                    if let (Some(v), Some((wi, wo))) =
+                        (exact_rec.node_value(k, i, j), exact_rec.grid().node_directions(k, i, j))
+                    {
                         let t = truth.eval(wi, wo);
                         assert!(
                             (v - t).abs().max_element() < 1e-6 * (1.0 + t.max_element()),
@@ -586,11 +608,14 @@ fn the_mixture_wins_the_hemisphere_and_nearly_ties_the_capture_slice() {
     );
 }
 
-/// Why the residual over the prior is a ratio: at tungsten-carbide's first level (pole and far ring)
-/// the fitted lobes miss the peak node's value, and a residual that is a difference in log(1 + f)
-/// carries that miss into the cell between the pole and u.x = 3/4, where the material is dark:
-/// the peak's shoulder comes out several times too bright. As a ratio the miss scales with the
-/// prior it is applied to. Printed: log err on the capture slice's pairs with theta_h in 8-30 deg.
+/// Why the residual over the prior is a ratio: the fitted lobes miss the peak node's value, and a
+/// residual that is a difference in log(1 + f) carries that miss into the cells beside the pole,
+/// where the material is dark: the peak's shoulder comes out too bright. As a ratio the miss scales
+/// with the prior it is applied to. At tungsten-carbide's first level (pole and far ring) the log
+/// residual made the shoulder several times too bright; that level is now the fit alone
+/// (`plan::level_keeps_residual`), so the test reads the second (4 x 4), where the ratio halves the
+/// error (printed: 0.00036 against 0.00070). Printed: log err on the capture slice's pairs with
+/// theta_h in 8-30 deg.
 #[test]
 fn a_ratio_residual_keeps_the_peak_correction_off_the_dark_shoulder() {
     let truth = crate::brdf::spec::parse_material("nbrdf:tungsten-carbide").expect("bundled material");
@@ -611,12 +636,12 @@ fn a_ratio_residual_keeps_the_peak_correction_off_the_dark_shoulder() {
             .expect("plan");
         assert_eq!(plan.layout(), crate::brdf::grid::NodeLayout::NestedFarRing);
         let values = plan.measure(truth.as_ref());
-        let rec = plan.reconstruct(1, &values).expect("reconstruct");
+        let rec = plan.reconstruct(2, &values).expect("reconstruct");
         report::log_err_over(&shoulder, truth.as_ref(), &rec)
     };
     let (ratio, log) = (err(Interp::Ratio), err(Interp::Log));
-    println!("tungsten-carbide 2x2, shoulder log err: ratio residual {ratio:.5}, log(1 + f) residual {log:.5}");
-    assert!(ratio < 0.5 * log, "ratio {ratio} vs log {log}");
+    println!("tungsten-carbide 4x4, shoulder log err: ratio residual {ratio:.5}, log(1 + f) residual {log:.5}");
+    assert!(ratio < 0.7 * log, "ratio {ratio} vs log {log}");
 }
 
 /// Every interpolated quantity maps back to the value it came from, at the extremes too: 0, a
