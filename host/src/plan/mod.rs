@@ -969,6 +969,10 @@ impl Plan {
                         .get(&(k, self.layout.fine_index(i, n, fine_n), j * stride_j))
                         .filter(|&&d| d < limit)
                         .map(|&d| {
+                            // A fit-alone level stores zero residuals (no prior evaluation needed).
+                            if !residual {
+                                return DVec3::ZERO;
+                            }
                             let base = match &prior {
                                 Some(p) => {
                                     let dir = &self.directions[d];
@@ -976,11 +980,7 @@ impl Plan {
                                 }
                                 None => DVec3::ZERO,
                             };
-                            if residual {
-                                interp.forward(values[d]) - base
-                            } else {
-                                DVec3::ZERO
-                            }
+                            interp.forward(values[d]) - base
                         });
                     grid.set_node(k, i, j, v);
                 }

@@ -613,8 +613,8 @@ fn the_mixture_wins_the_hemisphere_and_nearly_ties_the_capture_slice() {
 /// where the material is dark: the peak's shoulder comes out too bright. As a ratio the miss scales
 /// with the prior it is applied to. At tungsten-carbide's first level (pole and far ring) the log
 /// residual made the shoulder several times too bright; that level is now the fit alone
-/// (`plan::level_keeps_residual`), so the test reads the second (4 x 4), where the ratio halves the
-/// error (printed: 0.00036 against 0.00070). Printed: log err on the capture slice's pairs with
+/// (`plan::level_keeps_residual`), so the test reads the second (4 x 4), where the ratio about halves
+/// the error (printed: 0.00036 against 0.00070). Printed: log err on the capture slice's pairs with
 /// theta_h in 8-30 deg.
 #[test]
 fn a_ratio_residual_keeps_the_peak_correction_off_the_dark_shoulder() {
