@@ -19,7 +19,7 @@ use gonio::brdf::{parse_material, Material};
 use gonio::encoder::infer::Encoder;
 use gonio::encoder::ModelKind;
 use gonio::plan::report::Scorer;
-use gonio::plan::tradeoff::photo_estimate;
+use gonio::plan::tradeoff::{capture_photo, photo_estimate};
 use gonio::plan::{FittedPrior, PlanConfig, Planner, Strategy};
 use gonio::render::scene::{DeltaLight, Scene};
 
@@ -73,7 +73,7 @@ fn main() -> anyhow::Result<()> {
     let mut scorer = Scorer::new(SIZE)?;
     for spec in &materials {
         let truth = parse_material(spec)?;
-        let (estimate, _) = photo_estimate(spec, &encoder)?;
+        let (estimate, _) = photo_estimate(&capture_photo(spec)?.1, &encoder)?;
         println!("== {spec} (photo estimate {})", estimate.model.to_spec());
         let truth_img = scorer.render(parse_material(spec)?);
         if let Some(dir) = &maps {

@@ -114,8 +114,9 @@ pub struct TradeoffArgs {
     /// What the reconstruction interpolates on top of: Lambert plus two GGX lobes with a bounded
     /// Fresnel rise fitted to each level's own measurements (two-lobes), the same without the rise
     /// (two-lobes-plain), two-lobes with the Lambert term under the darkest measurement
-    /// (two-lobes-capped, a trial: docs/tradeoff/README.md), one lobe (fit), or nothing (none). The
-    /// same for every strategy.
+    /// (two-lobes-capped, a trial: docs/tradeoff/README.md), two-lobes fitted to the capture photo's
+    /// pixels too (two-lobes-photo, a trial: the photo shares the point-light score's light), one
+    /// lobe (fit), or nothing (none). The same for every strategy.
     #[arg(long, value_enum, default_value_t = super::PlanConfig::default().prior)]
     pub prior: super::Prior,
     /// Point-light render side in pixels (default 128; table1: 256).

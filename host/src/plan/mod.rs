@@ -29,6 +29,7 @@ pub mod cli;
 pub mod file;
 pub mod order;
 pub mod photo;
+pub mod photo_samples;
 pub mod report;
 pub mod tradeoff;
 
@@ -247,6 +248,13 @@ pub enum Prior {
     /// `TwoLobes` with the Lambert term no brighter than the darkest measurement within 80 deg of
     /// the normal (`fit_lobes::DiffuseBound::BelowDarkest`): a trial, not the default.
     TwoLobesCapped,
+    /// `TwoLobes` fitted to the level's measurements and to the capture photo's pixels
+    /// (`photo_samples`, given with `Plan::set_photo`), the photo's total weight
+    /// `PHOTO_WEIGHT` times the measurements': a trial, not the default. The photo sees the
+    /// highlight's shoulder that a coarse level misses, but it is taken under the capture light,
+    /// the light of the point-light score, so that score is no longer independent of the fit's data
+    /// (docs/tradeoff/README.md).
+    TwoLobesPhoto,
 }
 
 impl fmt::Display for Prior {
@@ -257,6 +265,7 @@ impl fmt::Display for Prior {
             Prior::TwoLobes => "two-lobes",
             Prior::TwoLobesPlain => "two-lobes-plain",
             Prior::TwoLobesCapped => "two-lobes-capped",
+            Prior::TwoLobesPhoto => "two-lobes-photo",
         })
     }
 }
@@ -514,6 +523,8 @@ pub struct Plan {
     specular_alpha: f64,
     /// Where each level's nodes sit in u (`node_layout`).
     layout: NodeLayout,
+    /// The capture photo's pixels for `Prior::TwoLobesPhoto` (`set_photo`).
+    photo: Option<photo_samples::PhotoSamples>,
 }
 
 /// The node layout of a plan with this warp and finest N: the mixture's first level measures the
@@ -812,6 +823,7 @@ impl Planner {
             settle_exposure_seconds: settle_exposure,
             specular_alpha: self.estimate.alpha().max(PLAN_ALPHA_MIN),
             layout,
+            photo: None,
         })
     }
 }
@@ -828,6 +840,11 @@ impl Plan {
 
     pub fn wire(&self) -> Vec<Direction> {
         self.directions.iter().map(PlannedDirection::wire).collect()
+    }
+
+    /// Give the reconstruction the capture photo's pixels (read by `Prior::TwoLobesPhoto` only).
+    pub fn set_photo(&mut self, photo: photo_samples::PhotoSamples) {
+        self.photo = Some(photo);
     }
 
     /// Where the levels' nodes sit in u.
@@ -912,7 +929,7 @@ impl Plan {
         )?;
         let prior = match prior {
             Prior::None => None,
-            Prior::Fit | Prior::TwoLobes | Prior::TwoLobesPlain | Prior::TwoLobesCapped => {
+            Prior::Fit | Prior::TwoLobes | Prior::TwoLobesPlain | Prior::TwoLobesCapped | Prior::TwoLobesPhoto => {
                 let measured = &self.directions[..limit];
                 let pairs: Vec<(DVec3, DVec3)> = measured.iter().map(|d| (d.wi, d.wo)).collect();
                 // Each sample stands for the equal-angle measure its warp gives it (p_angles / p_warp):
@@ -931,6 +948,13 @@ impl Plan {
                     })
                     .collect();
                 let values = &values[..limit];
+                let mut fit_data = (pairs.clone(), values.to_vec(), weights.clone());
+                if prior == Prior::TwoLobesPhoto {
+                    let photo = self.photo.as_ref().ok_or_else(|| {
+                        PlanError::Invalid("the two-lobes-photo prior needs the capture photo (Plan::set_photo)".into())
+                    })?;
+                    photo_samples::append_weighted(&mut fit_data, photo, PHOTO_WEIGHT);
+                }
                 Some(if prior == Prior::Fit {
                     let fit = crate::brdf::fit::fit_samples(pairs, values, &weights, crate::brdf::fit::FitModel::Ggx);
                     FittedPrior::Lobe(fit.model)
@@ -938,9 +962,9 @@ impl Plan {
                     let min_alpha = sharp_lobe_floor(self.specular_alpha, &pairs);
                     FittedPrior::TwoLobes(
                         crate::brdf::fit_lobes::fit_two_lobes_bounded(
-                            &pairs,
-                            values,
-                            &weights,
+                            &fit_data.0,
+                            &fit_data.1,
+                            &fit_data.2,
                             min_alpha,
                             if prior == Prior::TwoLobesPlain {
                                 crate::brdf::fit_lobes::LobeFresnel::None
@@ -1064,6 +1088,12 @@ pub fn level_keeps_residual(layout: NodeLayout, n: usize) -> bool {
 pub fn sharp_lobe_floor(estimate_alpha: f64, pairs: &[(DVec3, DVec3)]) -> f64 {
     (SHARP_FLOOR_SHARE * estimate_alpha).min(SHARP_FLOOR_SHARE * crate::brdf::fit_lobes::resolvable_alpha(pairs))
 }
+
+/// `Prior::TwoLobesPhoto`: the photo's samples together weigh this many times the level's
+/// measurements. Chosen on training and training-pool against 0.3, 1, 3 and 10 with every 8th
+/// pixel (3 with every 4th won), on environment FLIP and brdf_log_err: the point-light score
+/// shares the photo's light (docs/tradeoff/README.md).
+pub const PHOTO_WEIGHT: f64 = 3.0;
 
 /// The share of the estimate's and of the samples' resolvable roughness below which the prior's
 /// sharp lobe may not go (`sharp_lobe_floor`).

@@ -341,15 +341,25 @@ pub struct TradeRow {
 }
 
 /// The encoder's estimate (`plan::photo::estimate_from_image`, GGX model) from a capture photo of
-/// `spec`, and the host time it took (s). The photo is rendered per `examples/capture.toml` (256 px,
-/// linear: it stands in for the camera and is not timed).
-pub fn photo_estimate(spec: &str, encoder: &Encoder) -> Result<(Estimate, f64), PlanError> {
-    let scene = capture_scene(spec, CAPTURE_SIZE).map_err(PlanError::Invalid)?;
-    let photo = render_with(&scene, &scene.settings, &|| {}).map_err(|e| PlanError::Invalid(e.to_string()))?;
+/// `spec` (`capture_photo`), and the host time it took (s).
+pub fn photo_estimate(photo: &Image, encoder: &Encoder) -> Result<(Estimate, f64), PlanError> {
     let t0 = Instant::now();
-    let est = super::photo::estimate_from_image(&photo, encoder, None)?;
+    let est = super::photo::estimate_from_image(photo, encoder, None)?;
     Ok((est.estimate, t0.elapsed().as_secs_f64()))
 }
+
+/// The capture photo of `spec` and its scene, rendered per `examples/capture.toml` (256 px, linear:
+/// it stands in for the camera and is not timed).
+pub fn capture_photo(spec: &str) -> Result<(Scene, Image), PlanError> {
+    let scene = capture_scene(spec, CAPTURE_SIZE).map_err(PlanError::Invalid)?;
+    let photo = render_with(&scene, &scene.settings, &|| {}).map_err(|e| PlanError::Invalid(e.to_string()))?;
+    Ok((scene, photo))
+}
+
+/// Every `PHOTO_STRIDE`-th pixel of the 256 px capture photo in x and y feeds
+/// `Prior::TwoLobesPhoto` (about 2600 samples; with every 8th the environment FLIP was worse on training and its pool,
+/// docs/tradeoff/README.md).
+const PHOTO_STRIDE: usize = 4;
 
 /// Side of the rendered capture photo (as `examples/capture.toml`).
 const CAPTURE_SIZE: usize = 256;
@@ -399,16 +409,29 @@ pub fn run(
         } else {
             t0.elapsed().as_secs_f64()
         };
-        let photo = match &encoder {
-            Some(e) => Some(photo_estimate(spec, e)?),
-            None => None,
+        let needs_samples = cfg.prior == super::Prior::TwoLobesPhoto;
+        let capture = if encoder.is_some() || needs_samples {
+            Some(capture_photo(spec)?)
+        } else {
+            None
         };
-        inputs.push((spec.clone(), truth, (true_estimate, fit_seconds), photo));
+        let photo = match (&encoder, &capture) {
+            (Some(e), Some((_, img))) => Some(photo_estimate(img, e)?),
+            _ => None,
+        };
+        let samples = match (&capture, needs_samples) {
+            (Some((scene, img)), true) => Some(
+                super::photo_samples::photo_samples(scene, img, None, PHOTO_STRIDE)
+                    .map_err(|e| PlanError::Invalid(format!("{spec}: {e}")))?,
+            ),
+            _ => None,
+        };
+        inputs.push((spec.clone(), truth, (true_estimate, fit_seconds), photo, samples));
     }
     std::fs::create_dir_all(dir).map_err(|e| PlanError::Invalid(format!("{}: {e}", dir.display())))?;
     let mut rows: Vec<TradeRow> = Vec::new();
     let mut sheets: Vec<(String, Vec<u8>, usize, usize)> = Vec::new();
-    for (spec, truth, true_est, photo) in &inputs {
+    for (spec, truth, true_est, photo, samples) in &inputs {
         let truth_img = scorer.render(parse_material(spec)?);
         let truth_env = scorer
             .render_env(parse_material(spec)?, spec)
@@ -433,7 +456,10 @@ pub fn run(
                 prior: cfg.prior,
             };
             let t0 = Instant::now();
-            let plan = Planner::new(*instrument, estimate.clone())?.plan(&config)?;
+            let mut plan = Planner::new(*instrument, estimate.clone())?.plan(&config)?;
+            if let Some(samples) = samples {
+                plan.set_photo(samples.clone());
+            }
             let plan_seconds = t0.elapsed().as_secs_f64();
             let measured = plan.measure(truth.as_ref());
             for l in &plan.levels {
@@ -681,6 +707,11 @@ fn markdown(cfg: &TradeoffConfig, rows: &[TradeRow]) -> String {
             }
             super::Prior::TwoLobesPlain => {
                 " (as two-lobes, without the Fresnel rise: an ablation)"
+            }
+            super::Prior::TwoLobesPhoto => {
+                " (as two-lobes, fitted to the capture photo's pixels too, weighed `plan::PHOTO_WEIGHT` times the \
+                 measurements: a trial; the photo is taken under the point light that scores, so the point-light errors are not \
+                 independent of the fit's data)"
             }
             super::Prior::TwoLobesCapped => {
                 " (as two-lobes, with the Lambert term no brighter than the darkest measurement within 80 deg of \
