@@ -948,18 +948,21 @@ impl Plan {
                     })
                     .collect();
                 let values = &values[..limit];
-                let mut fit_data = (pairs.clone(), values.to_vec(), weights.clone());
-                if prior == Prior::TwoLobesPhoto {
-                    let photo = self.photo.as_ref().ok_or_else(|| {
-                        PlanError::Invalid("the two-lobes-photo prior needs the capture photo (Plan::set_photo)".into())
-                    })?;
-                    photo_samples::append_weighted(&mut fit_data, photo, PHOTO_WEIGHT);
-                }
                 Some(if prior == Prior::Fit {
                     let fit = crate::brdf::fit::fit_samples(pairs, values, &weights, crate::brdf::fit::FitModel::Ggx);
                     FittedPrior::Lobe(fit.model)
                 } else {
+                    // The floor reads the plan's own samples only (the photo's are not the plan's).
                     let min_alpha = sharp_lobe_floor(self.specular_alpha, &pairs);
+                    let mut fit_data = (pairs, values.to_vec(), weights);
+                    if prior == Prior::TwoLobesPhoto {
+                        let photo = self.photo.as_ref().ok_or_else(|| {
+                            PlanError::Invalid(
+                                "the two-lobes-photo prior needs the capture photo (Plan::set_photo)".into(),
+                            )
+                        })?;
+                        photo_samples::append_weighted(&mut fit_data, photo, PHOTO_WEIGHT);
+                    }
                     FittedPrior::TwoLobes(
                         crate::brdf::fit_lobes::fit_two_lobes_bounded(
                             &fit_data.0,

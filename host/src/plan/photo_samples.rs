@@ -6,8 +6,10 @@
 //! an orthographic view every sphere pixel is one direction pair, at one fixed half-angle between
 //! the light and the view (15 degrees in `examples/capture.toml`) and half-vector angles from the
 //! highlight's centre out to the rim. Each pixel is P = s f(wi, wo) cos(theta_i) E(p), with E the
-//! light's irradiance at the point (known from the scene) and s the unknown light x exposure scale;
-//! `PhotoSamples` holds (wi, wo) and P / (cos(theta_i) E) = s f, and the fit finds s.
+//! light's irradiance at the point (known from the scene) and s the light x exposure scale;
+//! `PhotoSamples` holds (wi, wo) and P / (cos(theta_i) E) = s f. `append_weighted` takes s = 1, a
+//! calibrated capture (as `gonio tradeoff`'s rendered one is); `Prior::TwoLobesPhoto` is a trial
+//! (docs/tradeoff/README.md), and an uncalibrated photo would need s fitted too.
 //!
 //! The geometry is the renderer's own (camera ray through the pixel centre, the shape's hit, the
 //! shading frame), so a photo rendered from the scene with one sample per pixel maps exactly.

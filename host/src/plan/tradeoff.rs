@@ -457,10 +457,10 @@ pub fn run(
             };
             let t0 = Instant::now();
             let mut plan = Planner::new(*instrument, estimate.clone())?.plan(&config)?;
+            let plan_seconds = t0.elapsed().as_secs_f64();
             if let Some(samples) = samples {
                 plan.set_photo(samples.clone());
             }
-            let plan_seconds = t0.elapsed().as_secs_f64();
             let measured = plan.measure(truth.as_ref());
             for l in &plan.levels {
                 let grid = plan.reconstruct(l.level, &measured)?;
