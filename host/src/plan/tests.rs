@@ -691,17 +691,8 @@ fn the_photo_prior_fits_the_photos_slice_and_needs_a_photo() {
     let with_photo = plan
         .reconstruct_with(1, &values, Prior::TwoLobesPhoto)
         .expect("reconstruct");
-    let slice_err = |rec: &dyn Material| {
-        let e: f64 = samples
-            .pairs
-            .iter()
-            .map(|&(wi, wo)| {
-                let (t, r) = (truth.eval(wi, wo) * wo.z, rec.eval(wi, wo) * wo.z);
-                (0..3).map(|c| (t[c].ln_1p() - r[c].ln_1p()).abs()).sum::<f64>() / 3.0
-            })
-            .sum();
-        e / samples.len() as f64
-    };
+    // The capture slice's error: brdf_log_err's formula over the photo's own pairs.
+    let slice_err = |rec: &dyn Material| report::log_err_over(&samples.pairs, truth.as_ref(), rec);
     let (a, b) = (slice_err(&plain), slice_err(&with_photo));
     let (ha, hb) = (
         log_err_between_slices(truth.as_ref(), &plain),

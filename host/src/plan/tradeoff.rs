@@ -399,6 +399,8 @@ pub fn run(
     } else {
         None
     };
+    // The photo prior reads the capture photo's pixels (`photo_samples`), for every strategy.
+    let needs_samples = cfg.prior == super::Prior::TwoLobesPhoto;
     let mut inputs = Vec::new();
     for spec in &cfg.materials {
         let truth = parse_material(spec)?;
@@ -409,7 +411,6 @@ pub fn run(
         } else {
             t0.elapsed().as_secs_f64()
         };
-        let needs_samples = cfg.prior == super::Prior::TwoLobesPhoto;
         let capture = if encoder.is_some() || needs_samples {
             Some(capture_photo(spec)?)
         } else {
