@@ -8,7 +8,7 @@
 //! Run: `cargo run --release -p gonio-firmware --example firmware_costs`
 
 use gonio_firmware::stepper::Stepper;
-use gonio_firmware::{Device, Hal, Readout};
+use gonio_firmware::{Clock, Detector, Device, Readout, Steppers, Switches};
 use gonio_shared::frame::{encode, FrameDecoder, MAX_WIRE_FRAME};
 use gonio_shared::instrument::InstrumentConfig;
 use gonio_shared::msg::{Direction, Hello, HostMsg, PlanChunk};
@@ -22,17 +22,26 @@ struct NullHal {
     steps: u64,
 }
 
-impl Hal for NullHal {
+impl Clock for NullHal {
     fn now_us(&self) -> u64 {
         self.now
     }
+}
+
+impl Steppers for NullHal {
     fn set_direction(&mut self, _: Axis, _: bool) {}
     fn step(&mut self, _: Axis) {
         self.steps += 1;
     }
+}
+
+impl Switches for NullHal {
     fn limit_closed(&self, _: Axis) -> bool {
         false
     }
+}
+
+impl Detector for NullHal {
     fn start_exposure(&mut self, _: u32) {}
     fn poll_readout(&mut self) -> Option<Readout> {
         Some(Readout::new())
@@ -222,10 +231,13 @@ struct SwitchHal {
     cfg: InstrumentConfig<f32>,
 }
 
-impl Hal for SwitchHal {
+impl Clock for SwitchHal {
     fn now_us(&self) -> u64 {
         self.inner.now
     }
+}
+
+impl Steppers for SwitchHal {
     fn set_direction(&mut self, axis: Axis, increasing: bool) {
         self.dir[axis.index()] = increasing;
     }
@@ -234,6 +246,9 @@ impl Hal for SwitchHal {
         self.pos[i] += if self.dir[i] { 1 } else { -1 };
         self.inner.step(axis);
     }
+}
+
+impl Switches for SwitchHal {
     fn limit_closed(&self, axis: Axis) -> bool {
         let i = axis.index();
         let home = gonio_firmware::homing::home_position(&self.cfg, axis) as i64;
@@ -243,6 +258,9 @@ impl Hal for SwitchHal {
             (false, gonio_shared::HomeSide::Min) => self.pos[i] <= home,
         }
     }
+}
+
+impl Detector for SwitchHal {
     fn start_exposure(&mut self, e: u32) {
         self.inner.start_exposure(e);
     }

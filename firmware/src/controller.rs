@@ -26,10 +26,9 @@
 
 use crate::hal::Hal;
 use crate::homing::{self, Homing, Stage};
-use crate::link::Outbox;
 use crate::measurements::MeasurementBuffer;
+use crate::outbox::Outbox;
 use crate::plan::{Intake, PlanQueue};
-use crate::separation::SeparationGuard;
 use crate::stepper::{StepError, Stepper};
 use gonio_shared::instrument::{InstrumentConfig, AXES};
 use gonio_shared::kinematics::{Kinematics, Steps, Unreachable};
@@ -37,6 +36,7 @@ use gonio_shared::msg::caps::CHUNK_DIRECTIONS;
 use gonio_shared::msg::{
     check_handshake, Command, ControllerState, DeviceMsg, Fault, Hello, HostMsg, Measurement, RefuseReason, Status,
 };
+use gonio_shared::separation::SeparationGuard;
 use heapless::{Deque, Vec};
 
 /// Time the detector gets beyond its exposure before `Fault::DetectorTimeout`.
@@ -271,7 +271,7 @@ impl Controller {
     /// Not inlined: inlined into the board's controller task it cost about 2 KiB more flash
     /// (measured with `arm-none-eabi-size` on the STM32 release build).
     #[inline(never)]
-    pub fn handle<H: Hal, O: Outbox>(&mut self, seq: u16, msg: HostMsg, hal: &mut H, out: &mut O) {
+    pub fn handle<H: Hal>(&mut self, seq: u16, msg: HostMsg, hal: &mut H, out: &mut Outbox, bad_frames: u32) {
         self.last_now_us = self.last_now_us.max(hal.now_us());
         // Any command may have created work (a start, a plan, an ack that frees the buffer).
         self.more_work = true;
@@ -283,7 +283,7 @@ impl Controller {
                 return;
             }
             HostMsg::GetStatus => {
-                out.reply(&DeviceMsg::Status(self.status(out.bad_frames())));
+                out.reply(&DeviceMsg::Status(self.status(bad_frames)));
                 return;
             }
             HostMsg::Configure(_) => Command::Configure,
@@ -327,7 +327,7 @@ impl Controller {
         RefuseReason::WrongState(self.state)
     }
 
-    fn configure<O: Outbox>(&mut self, cfg: InstrumentConfig<f32>, out: &mut O) -> Result<(), RefuseReason> {
+    fn configure(&mut self, cfg: InstrumentConfig<f32>, out: &mut Outbox) -> Result<(), RefuseReason> {
         use ControllerState::*;
         if !matches!(self.state, Idle | Ready | Done) || self.stepper.is_moving() {
             return Err(self.wrong_state());
@@ -352,7 +352,7 @@ impl Controller {
         Ok(())
     }
 
-    fn grant_credit<O: Outbox>(&mut self, out: &mut O) {
+    fn grant_credit(&mut self, out: &mut Outbox) {
         let free = self.plan.free();
         out.reply(&DeviceMsg::Credit {
             next_index: self.plan.next_index(),
@@ -361,7 +361,7 @@ impl Controller {
         self.credit_reported = Some(free);
     }
 
-    fn take_plan<O: Outbox>(&mut self, chunk: &gonio_shared::msg::PlanChunk, out: &mut O) -> Result<(), RefuseReason> {
+    fn take_plan(&mut self, chunk: &gonio_shared::msg::PlanChunk, out: &mut Outbox) -> Result<(), RefuseReason> {
         let (Some(kin), Some(guard)) = (self.kin.first(), self.guard.as_ref()) else {
             return Err(RefuseReason::NotConfigured);
         };
@@ -481,7 +481,7 @@ impl Controller {
     /// The link dropped [`crate::link::BAD_FRAME_FAULT_RUN`] frames in a row: the host cannot be
     /// heard (it could not even stop us), so nothing new starts; a move in progress finishes its
     /// deceleration. Cleared by `Abort` or `Home` once frames get through again.
-    pub(crate) fn link_untrusted(&mut self) {
+    pub fn link_untrusted(&mut self) {
         if self.state != ControllerState::Fault {
             self.enter_fault(Fault::BadFrame);
             self.more_work = true;
@@ -504,7 +504,7 @@ impl Controller {
     }
 
     /// Run everything that is due: steps, homing, the scan, then tell the host what changed.
-    pub fn poll<H: Hal, O: Outbox>(&mut self, hal: &mut H, out: &mut O) {
+    pub fn poll<H: Hal>(&mut self, hal: &mut H, out: &mut Outbox, bad_frames: u32) {
         let now = hal.now_us();
         self.last_now_us = self.last_now_us.max(now);
         if self.stepper.is_moving() {
@@ -522,7 +522,7 @@ impl Controller {
                 break;
             }
         }
-        self.report(out);
+        self.report(out, bad_frames);
     }
 
     /// Switches first (a closed switch stops everything before another step), then due steps.
@@ -743,7 +743,7 @@ impl Controller {
     }
 
     /// Send what the host has not been told yet, in order of urgency, as far as the outbox allows.
-    fn report<O: Outbox>(&mut self, out: &mut O) {
+    fn report(&mut self, out: &mut Outbox, bad_frames: u32) {
         while let Some(&f) = self.faults_unreported.front() {
             if !out.notify(&DeviceMsg::Fault(f)) {
                 return;
@@ -751,7 +751,7 @@ impl Controller {
             self.faults_unreported.pop_front();
         }
         if self.status_unreported {
-            if !out.notify(&DeviceMsg::Status(self.status(out.bad_frames()))) {
+            if !out.notify(&DeviceMsg::Status(self.status(bad_frames))) {
                 return;
             }
             self.status_unreported = false;

@@ -7,9 +7,10 @@
 //! is taken; the MCU never repairs a plan (Klipper's stance).
 
 use crate::capacity::PLAN_CAPACITY;
-use crate::separation::SeparationGuard;
+use gonio_shared::acceptance::check_direction;
 use gonio_shared::kinematics::{Kinematics, Steps, Unreachable};
-use gonio_shared::msg::{Direction, PlanChunk, RefuseReason};
+use gonio_shared::msg::{PlanChunk, RefuseReason};
+use gonio_shared::separation::SeparationGuard;
 use heapless::Deque;
 
 /// One accepted plan direction: its index and the step positions that measure it.
@@ -143,22 +144,4 @@ impl PlanQueue {
             }
         }
     }
-}
-
-/// The step targets that measure `d`, planned from the step positions `from`, or why it cannot be.
-pub fn check_direction(
-    kin: &Kinematics<f32>,
-    guard: &SeparationGuard,
-    d: &Direction,
-    from: &Steps,
-) -> Result<Steps, Unreachable> {
-    let current = kin.from_steps(from);
-    let pose = kin.inverse_angles(d.theta_i, d.phi_i, d.theta_o, d.phi_o, &current)?;
-    let steps = kin.to_steps(&pose)?;
-    // Rounding to steps may push an axis past a soft limit: check the pose actually reached.
-    kin.check_pose(&kin.from_steps(&steps))?;
-    if !guard.allows_target(&steps) {
-        return Err(Unreachable::Blocked);
-    }
-    Ok(steps)
 }

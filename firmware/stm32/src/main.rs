@@ -19,7 +19,7 @@
 
 mod board;
 
-use board::{AxisPins, BoardIo, CsQueue, Detector, SYSCLK_HZ};
+use board::{AdcDetector, AxisPins, BoardIo, CsQueue, SYSCLK_HZ};
 use defmt::{info, warn};
 use defmt_rtt as _;
 use embassy_executor::Spawner;
@@ -139,7 +139,7 @@ async fn main(spawner: Spawner) {
         ExtiInput::new_blocking(p.PB5, p.EXTI5, Pull::Up, TriggerEdge::Falling),
     ];
     // Internal-ADC detector: ADC1_IN4..IN7 on PA4..PA7, channel order = readout order.
-    let detector = Detector {
+    let detector = AdcDetector {
         adc: Adc::new(p.ADC1),
         channels: [
             p.PA4.degrade_adc(),
