@@ -1,28 +1,5 @@
-//! The controller state machine: Idle -> Homing -> Ready -> Running <-> Paused -> Done, and Fault
-//! from anywhere.
-//!
-//! | state | accepts | leaves by |
-//! |---|---|---|
-//! | Idle (not homed) | Configure, Plan, PlanEnd, Home, Abort | Home |
-//! | Homing | Plan, PlanEnd, Abort (stops at once -> Idle) | every switch found -> Ready |
-//! | Ready | Configure, Plan, PlanEnd, Home, Start, Abort | Start -> Running |
-//! | Running | Plan, PlanEnd, Pause, Abort | plan ended and measured -> Done; measurement buffer full -> Paused |
-//! | Paused | Plan, PlanEnd, Pause, Resume, Abort | Resume -> Running (automatic after a buffer-full pause once acks free room) |
-//! | Done | Configure, Home, Abort (-> Ready) | |
-//! | Fault | Home; Abort unless the fault needs re-homing | Home -> Homing; Abort -> Ready/Idle |
-//!
-//! `Hello`, `GetStatus`, `AckMeasurements` and `ResendMeasurements` are accepted in every state.
-//! Everything else is answered with `Refused { seq, command, reason }`, never ignored. Before a
-//! compatible `Hello` only `Hello` and `GetStatus` are served.
-//!
-//! Faults: a limit switch during a move halts every axis at once and needs re-homing (the position
-//! is no longer trusted); so does a homing failure. Other faults (an unreachable plan direction, a
-//! detector timeout, a full buffer) let a move in progress finish its planned deceleration, start
-//! nothing new, and are cleared by `Abort` or `Home`. Commands that start motion are refused while
-//! such a move winds down.
-//!
-//! Per plan direction: synchronised move -> settle (`settle_ms`) -> exposure -> readout ->
-//! `Measurement`. A new direction starts only when the measurement buffer has room for its reading.
+//! The controller state machine (Idle, Homing, Ready, Running, Paused, Done, Fault): one host command
+//! at a time, and the per-direction scan sequence; states and rules in `docs/firmware.md`.
 
 use crate::hal::Hal;
 use crate::homing::{self, Homing, Stage};
@@ -74,9 +51,8 @@ enum PauseCause {
     MeasurementsFull,
 }
 
-/// `Option`-like fields are `heapless::Vec<_, 1>` where the `Option` would use a niche: a `Vec` is
-/// empty when all-zero, so `Controller::new()` is all zero bytes and a `static` Device lands in
-/// `.bss` instead of costing its ~20 KiB twice (flash image + RAM) in `.data`.
+/// `Option`-like fields are `heapless::Vec<_, 1>` (empty when all-zero), so `Controller::new()` is
+/// all zero bytes and a `static` Device lands in `.bss`, not in `.data`.
 pub struct Controller {
     state: ControllerState,
     handshake: bool,
@@ -268,8 +244,7 @@ impl Controller {
     /// Act on one host command (already sequence-checked by the link); `seq` is its frame's
     /// sequence number, named in a `Refused`.
     ///
-    /// Not inlined: inlined into the board's controller task it cost about 2 KiB more flash
-    /// (measured with `arm-none-eabi-size` on the STM32 release build).
+    /// Not inlined: it keeps the board's controller task small (`docs/firmware.md`, flash).
     #[inline(never)]
     pub fn handle<H: Hal>(&mut self, seq: u16, msg: HostMsg, hal: &mut H, out: &mut Outbox, bad_frames: u32) {
         self.last_now_us = self.last_now_us.max(hal.now_us());

@@ -1,15 +1,5 @@
-//! The link layer: bytes in, checked and sequence-filtered host commands out.
-//!
-//! - Every byte goes through the shared [`FrameDecoder`]; a bad frame is answered with a `Nak`
-//!   carrying the sequence number the link expects next, so the host resends from there.
-//! - Host sequence numbers: the expected one is acknowledged and yielded for execution; a recent
-//!   one (a resend whose `Ack` was lost) is acknowledged again but not yielded; anything else is a
-//!   gap and is NAKed. `Hello` with sequence number 0 and a session id other than the current
-//!   session's opens a new session (the count restarts at 1); every other `Hello` obeys the rules
-//!   above like any frame, and a duplicate of the opening one is answered again (see `msg::Hello`).
-//!   So a late, duplicated or reordered `Hello` never restarts the count mid-session, and a resent
-//!   frame is never executed twice.
-//! - Acks and NAKs go to the [`Outbox`]; the caller ([`crate::Device`]) dispatches what is yielded.
+//! The link layer: bytes in, checked and sequence-filtered host commands out (acks and NAKs to the
+//! outbox); the sequence and session rules are in `docs/firmware.md`.
 
 use crate::outbox::Outbox;
 use gonio_shared::frame::FrameDecoder;

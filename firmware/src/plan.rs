@@ -1,10 +1,5 @@
-//! Plan intake: the bounded ring of accepted directions, already turned into step targets.
-//!
-//! Every direction is checked when it arrives, not when it is reached: inverse kinematics from the
-//! previous accepted pose (so the solution branch is the one the move will actually start from),
-//! integer step targets, then the quantised pose against the soft limits and the separation guard.
-//! A direction that fails is rejected with its index and reason and nothing after it in its chunk
-//! is taken; the MCU never repairs a plan (Klipper's stance).
+//! Plan intake: the bounded ring of accepted directions, each checked and turned into step targets
+//! on arrival (`gonio_shared::acceptance`); a failing one is rejected, never repaired.
 
 use crate::capacity::PLAN_CAPACITY;
 use gonio_shared::acceptance::check_direction;

@@ -1,22 +1,5 @@
-//! The controller ahead of real time, its steps played back by a timer: the board's [`Hal`].
-//!
-//! [`QueuedHal`] wraps a board that has a real-time [`Clock`], [`Switches`] and a [`Detector`] and
-//! adds [`Steppers`]; the [`Clock`] it shows the controller is the *schedule* clock: real time while
-//! nothing moves, up to [`LOOKAHEAD_US`] ahead of it during a move. `step` and `set_direction`
-//! do not touch pins; they queue an event at that schedule instant in the [`StepQueue`] the timer
-//! interrupt plays back ([`crate::step_queue`]). So the controller's timing cost, and anything else
-//! the CPU does (a host frame, USB), only has to keep the queue from running dry: the pulse edges
-//! themselves are as exact as the timer interrupt's latency.
-//!
-//! [`QueuedHal::run`] is the whole controller loop: take a latched limit trip and hand it to the
-//! controller, arm the switches the controller would stop on, and poll every deadline that falls
-//! within the horizon while the queue has room for one poll's events. The binary calls it after
-//! every received packet and at the instant it returns; host tests call it with a simulated clock
-//! and play the queue back as the timer would.
-//!
-//! Why settle and exposure stay on real time: the horizon is real time unless a move is in
-//! progress, so a settle that starts at the last step's *scheduled* instant ends, and the exposure
-//! starts, at the real instant it should.
+//! The controller ahead of real time, its steps queued for a timer to play: the board's HAL and loop
+//! (`docs/firmware.md`, "The board's step path").
 
 use crate::controller::TRANSITIONS_PER_POLL;
 use crate::hal::{Clock, Detector, Readout, Steppers, Switches};
