@@ -68,7 +68,8 @@ impl Link {
     }
 
     /// Feed one received byte; acks and NAKs go to `out`. The caller keeps room for them
-    /// ([`Outbox::can_take_input`]).
+    /// ([`Outbox::can_take_input`]). Not inlined, like `Controller::handle` (`docs/firmware.md`).
+    #[inline(never)]
     pub fn push(&mut self, byte: u8, out: &mut Outbox) -> Option<Incoming> {
         match self.decoder.push::<HostMsg>(byte)? {
             Err(e) => {
