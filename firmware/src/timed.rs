@@ -58,11 +58,6 @@ impl<B, Q> QueuedHal<B, Q> {
             dir: [None; AXIS_COUNT],
         }
     }
-
-    /// The schedule clock (for tests and the log).
-    pub fn schedule_us(&self) -> u64 {
-        self.now_us
-    }
 }
 
 impl<B: Clock + Switches + Detector, Q: SharedQueue> QueuedHal<B, Q> {

@@ -150,15 +150,7 @@ impl Sim {
 
     fn isr(&mut self) {
         let now = self.hal.board.real;
-        let late0 = self.stats().late;
         let (pins, _) = self.hal.queue.with(|q| q.service(tick(now)));
-        if std::env::var("SIM_DEBUG").is_ok() && self.stats().late != late0 {
-            eprintln!(
-                "late at {now}: {pins:?} state {:?} sched {}",
-                self.dev.controller().state(),
-                self.hal.schedule_us()
-            );
-        }
         let b = &mut self.hal.board;
         for axis in AXES {
             let (i, bit) = (axis.index(), 1u8 << axis.index());
