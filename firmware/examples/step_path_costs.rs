@@ -14,8 +14,8 @@
 //! ```
 
 use gonio_firmware::step_queue::StepQueue;
-use gonio_firmware::timed::{tick, Board, QueuedHal, SharedQueue};
-use gonio_firmware::{Device, Readout};
+use gonio_firmware::timed::{tick, QueuedHal, SharedQueue};
+use gonio_firmware::{Clock, Detector, Device, Readout, Switches};
 use gonio_shared::frame::{encode, MAX_WIRE_FRAME};
 use gonio_shared::instrument::InstrumentConfig;
 use gonio_shared::msg::{Direction, Hello, HostMsg, PlanChunk};
@@ -31,11 +31,14 @@ struct SimBoard {
     cfg: InstrumentConfig<f32>,
 }
 
-impl Board for SimBoard {
+impl Clock for SimBoard {
     fn now_us(&self) -> u64 {
         self.real
     }
-    fn switch_closed(&self, axis: Axis) -> bool {
+}
+
+impl Switches for SimBoard {
+    fn limit_closed(&self, axis: Axis) -> bool {
         let i = axis.index();
         let home = gonio_firmware::homing::home_position(&self.cfg, axis) as i64;
         match (self.cfg.axis(axis).continuous, self.cfg.axis(axis).home) {
@@ -44,6 +47,9 @@ impl Board for SimBoard {
             (false, gonio_shared::HomeSide::Min) => self.pos[i] <= home,
         }
     }
+}
+
+impl Detector for SimBoard {
     fn start_exposure(&mut self, _: u32) {}
     fn poll_readout(&mut self) -> Option<Readout> {
         Some(Readout::new())
@@ -98,7 +104,7 @@ fn run(dev: &mut Device, hal: &mut QueuedHal<SimBoard, Shared>, costs: &mut Cost
                 if pins.step_high & b != 0 {
                     hal.board.pos[i] += if hal.board.dir[i] { 1 } else { -1 };
                     // A home switch closing is the EXTI trip.
-                    if hal.board.switch_closed(gonio_shared::instrument::AXES[i]) {
+                    if hal.board.limit_closed(gonio_shared::instrument::AXES[i]) {
                         hal.queue.with(|q| q.trip(b, tick(t)));
                     }
                 }

@@ -1,12 +1,4 @@
-//! Every buffer capacity of the firmware, in one place, sized for the STM32F411 (128 KiB RAM; the
-//! goal is <= 48 KiB of static RAM for the whole binary, stacks and USB buffers included).
-//!
-//! | buffer | entry | entries | bytes |
-//! |---|---|---|---|
-//! | plan ring ([`crate::plan::PlanQueue`]) | 20 B (index + 4 step targets) | 512 | ~10 KiB |
-//! | measurements ([`crate::measurements::MeasurementBuffer`]) | 56 B | 128 | ~7 KiB |
-//! | outbox ([`crate::link::Link`]) | bytes | 2048 | 2 KiB |
-//! | step events ([`crate::step_queue::StepQueue`], board only) | 8 B | 256 | 2 KiB |
+//! Every buffer capacity of the firmware, in one place (sizes in `docs/firmware.md`).
 
 /// Plan directions accepted ahead of the one being measured. At ~1 s per direction this is minutes
 /// of work, so the host's refills are never on the critical path; a plan of any length streams

@@ -1,35 +1,11 @@
-//! The controller state machine: Idle -> Homing -> Ready -> Running <-> Paused -> Done, and Fault
-//! from anywhere.
-//!
-//! | state | accepts | leaves by |
-//! |---|---|---|
-//! | Idle (not homed) | Configure, Plan, PlanEnd, Home, Abort | Home |
-//! | Homing | Plan, PlanEnd, Abort (stops at once -> Idle) | every switch found -> Ready |
-//! | Ready | Configure, Plan, PlanEnd, Home, Start, Abort | Start -> Running |
-//! | Running | Plan, PlanEnd, Pause, Abort | plan ended and measured -> Done; measurement buffer full -> Paused |
-//! | Paused | Plan, PlanEnd, Pause, Resume, Abort | Resume -> Running (automatic after a buffer-full pause once acks free room) |
-//! | Done | Configure, Home, Abort (-> Ready) | |
-//! | Fault | Home; Abort unless the fault needs re-homing | Home -> Homing; Abort -> Ready/Idle |
-//!
-//! `Hello`, `GetStatus`, `AckMeasurements` and `ResendMeasurements` are accepted in every state.
-//! Everything else is answered with `Refused { seq, command, reason }`, never ignored. Before a
-//! compatible `Hello` only `Hello` and `GetStatus` are served.
-//!
-//! Faults: a limit switch during a move halts every axis at once and needs re-homing (the position
-//! is no longer trusted); so does a homing failure. Other faults (an unreachable plan direction, a
-//! detector timeout, a full buffer) let a move in progress finish its planned deceleration, start
-//! nothing new, and are cleared by `Abort` or `Home`. Commands that start motion are refused while
-//! such a move winds down.
-//!
-//! Per plan direction: synchronised move -> settle (`settle_ms`) -> exposure -> readout ->
-//! `Measurement`. A new direction starts only when the measurement buffer has room for its reading.
+//! The controller state machine (Idle, Homing, Ready, Running, Paused, Done, Fault): one host command
+//! at a time, and the per-direction scan sequence; states and rules in `docs/firmware.md`.
 
 use crate::hal::Hal;
 use crate::homing::{self, Homing, Stage};
-use crate::link::Outbox;
 use crate::measurements::MeasurementBuffer;
+use crate::outbox::Outbox;
 use crate::plan::{Intake, PlanQueue};
-use crate::separation::SeparationGuard;
 use crate::stepper::{StepError, Stepper};
 use gonio_shared::instrument::{InstrumentConfig, AXES};
 use gonio_shared::kinematics::{Kinematics, Steps, Unreachable};
@@ -37,6 +13,7 @@ use gonio_shared::msg::caps::CHUNK_DIRECTIONS;
 use gonio_shared::msg::{
     check_handshake, Command, ControllerState, DeviceMsg, Fault, Hello, HostMsg, Measurement, RefuseReason, Status,
 };
+use gonio_shared::separation::SeparationGuard;
 use heapless::{Deque, Vec};
 
 /// Time the detector gets beyond its exposure before `Fault::DetectorTimeout`.
@@ -74,9 +51,8 @@ enum PauseCause {
     MeasurementsFull,
 }
 
-/// `Option`-like fields are `heapless::Vec<_, 1>` where the `Option` would use a niche: a `Vec` is
-/// empty when all-zero, so `Controller::new()` is all zero bytes and a `static` Device lands in
-/// `.bss` instead of costing its ~20 KiB twice (flash image + RAM) in `.data`.
+/// `Option`-like fields are `heapless::Vec<_, 1>` (empty when all-zero), so `Controller::new()` is
+/// all zero bytes and a `static` Device lands in `.bss`, not in `.data`.
 pub struct Controller {
     state: ControllerState,
     handshake: bool,
@@ -268,10 +244,9 @@ impl Controller {
     /// Act on one host command (already sequence-checked by the link); `seq` is its frame's
     /// sequence number, named in a `Refused`.
     ///
-    /// Not inlined: inlined into the board's controller task it cost about 2 KiB more flash
-    /// (measured with `arm-none-eabi-size` on the STM32 release build).
+    /// Not inlined: it keeps the board's controller task small (`docs/firmware.md`, flash).
     #[inline(never)]
-    pub fn handle<H: Hal, O: Outbox>(&mut self, seq: u16, msg: HostMsg, hal: &mut H, out: &mut O) {
+    pub fn handle<H: Hal>(&mut self, seq: u16, msg: HostMsg, hal: &mut H, out: &mut Outbox, bad_frames: u32) {
         self.last_now_us = self.last_now_us.max(hal.now_us());
         // Any command may have created work (a start, a plan, an ack that frees the buffer).
         self.more_work = true;
@@ -283,7 +258,7 @@ impl Controller {
                 return;
             }
             HostMsg::GetStatus => {
-                out.reply(&DeviceMsg::Status(self.status(out.bad_frames())));
+                out.reply(&DeviceMsg::Status(self.status(bad_frames)));
                 return;
             }
             HostMsg::Configure(_) => Command::Configure,
@@ -327,7 +302,7 @@ impl Controller {
         RefuseReason::WrongState(self.state)
     }
 
-    fn configure<O: Outbox>(&mut self, cfg: InstrumentConfig<f32>, out: &mut O) -> Result<(), RefuseReason> {
+    fn configure(&mut self, cfg: InstrumentConfig<f32>, out: &mut Outbox) -> Result<(), RefuseReason> {
         use ControllerState::*;
         if !matches!(self.state, Idle | Ready | Done) || self.stepper.is_moving() {
             return Err(self.wrong_state());
@@ -352,7 +327,7 @@ impl Controller {
         Ok(())
     }
 
-    fn grant_credit<O: Outbox>(&mut self, out: &mut O) {
+    fn grant_credit(&mut self, out: &mut Outbox) {
         let free = self.plan.free();
         out.reply(&DeviceMsg::Credit {
             next_index: self.plan.next_index(),
@@ -361,7 +336,7 @@ impl Controller {
         self.credit_reported = Some(free);
     }
 
-    fn take_plan<O: Outbox>(&mut self, chunk: &gonio_shared::msg::PlanChunk, out: &mut O) -> Result<(), RefuseReason> {
+    fn take_plan(&mut self, chunk: &gonio_shared::msg::PlanChunk, out: &mut Outbox) -> Result<(), RefuseReason> {
         let (Some(kin), Some(guard)) = (self.kin.first(), self.guard.as_ref()) else {
             return Err(RefuseReason::NotConfigured);
         };
@@ -481,7 +456,7 @@ impl Controller {
     /// The link dropped [`crate::link::BAD_FRAME_FAULT_RUN`] frames in a row: the host cannot be
     /// heard (it could not even stop us), so nothing new starts; a move in progress finishes its
     /// deceleration. Cleared by `Abort` or `Home` once frames get through again.
-    pub(crate) fn link_untrusted(&mut self) {
+    pub fn link_untrusted(&mut self) {
         if self.state != ControllerState::Fault {
             self.enter_fault(Fault::BadFrame);
             self.more_work = true;
@@ -504,7 +479,7 @@ impl Controller {
     }
 
     /// Run everything that is due: steps, homing, the scan, then tell the host what changed.
-    pub fn poll<H: Hal, O: Outbox>(&mut self, hal: &mut H, out: &mut O) {
+    pub fn poll<H: Hal>(&mut self, hal: &mut H, out: &mut Outbox, bad_frames: u32) {
         let now = hal.now_us();
         self.last_now_us = self.last_now_us.max(now);
         if self.stepper.is_moving() {
@@ -522,7 +497,7 @@ impl Controller {
                 break;
             }
         }
-        self.report(out);
+        self.report(out, bad_frames);
     }
 
     /// Switches first (a closed switch stops everything before another step), then due steps.
@@ -743,7 +718,7 @@ impl Controller {
     }
 
     /// Send what the host has not been told yet, in order of urgency, as far as the outbox allows.
-    fn report<O: Outbox>(&mut self, out: &mut O) {
+    fn report(&mut self, out: &mut Outbox, bad_frames: u32) {
         while let Some(&f) = self.faults_unreported.front() {
             if !out.notify(&DeviceMsg::Fault(f)) {
                 return;
@@ -751,7 +726,7 @@ impl Controller {
             self.faults_unreported.pop_front();
         }
         if self.status_unreported {
-            if !out.notify(&DeviceMsg::Status(self.status(out.bad_frames()))) {
+            if !out.notify(&DeviceMsg::Status(self.status(bad_frames))) {
                 return;
             }
             self.status_unreported = false;

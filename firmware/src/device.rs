@@ -1,4 +1,4 @@
-//! The whole firmware behind one value: the link and the controller, wired together.
+//! The whole firmware behind one value: the link, the controller and the outbox, wired together.
 //!
 //! The binary (or a test, or the virtual gonio) owns a [`Device`] and a HAL and calls, in any order:
 //! [`Device::receive`] with bytes from the host, [`Device::poll`] whenever
@@ -7,12 +7,14 @@
 
 use crate::controller::Controller;
 use crate::hal::Hal;
-use crate::link::Link;
+use crate::link::{Incoming, Link};
+use crate::outbox::Outbox;
 
 #[derive(Default)]
 pub struct Device {
     link: Link,
     controller: Controller,
+    outbox: Outbox,
 }
 
 impl Device {
@@ -20,23 +22,38 @@ impl Device {
         Self {
             link: Link::new(),
             controller: Controller::new(),
+            outbox: Outbox::new(),
         }
     }
 
     /// Feed bytes from the host; returns how many were consumed (all of them unless the outbox
     /// is too full to answer: drain it and offer the rest again).
     pub fn receive<H: Hal>(&mut self, hal: &mut H, bytes: &[u8]) -> usize {
-        self.link.receive(bytes, &mut self.controller, hal)
+        for (consumed, &byte) in bytes.iter().enumerate() {
+            if !self.outbox.can_take_input() {
+                return consumed;
+            }
+            match self.link.push(byte, &mut self.outbox) {
+                None => {}
+                Some(Incoming::Command { seq, msg }) => {
+                    let bad_frames = self.link.bad_frames();
+                    self.controller.handle(seq, msg, hal, &mut self.outbox, bad_frames);
+                }
+                Some(Incoming::Untrusted) => self.controller.link_untrusted(),
+            }
+        }
+        bytes.len()
     }
 
     /// Step, home, scan and report whatever is due now.
     pub fn poll<H: Hal>(&mut self, hal: &mut H) {
-        self.controller.poll(hal, &mut self.link);
+        let bad_frames = self.link.bad_frames();
+        self.controller.poll(hal, &mut self.outbox, bad_frames);
     }
 
     /// Move outgoing bytes into `out`; returns how many.
     pub fn drain_outbox(&mut self, out: &mut [u8]) -> usize {
-        self.link.drain(out)
+        self.outbox.drain(out)
     }
 
     /// Forget a partly received frame, e.g. when the USB host reconnects: its tail will never come,
@@ -74,5 +91,9 @@ impl Device {
 
     pub fn link(&self) -> &Link {
         &self.link
+    }
+
+    pub fn outbox(&self) -> &Outbox {
+        &self.outbox
     }
 }

@@ -1,12 +1,10 @@
-//! What the board does, and nothing else: step/dir outputs, limit inputs, the detector, a clock.
+//! What the board does, as four small traits: a clock, step/dir outputs, limit switches, a detector.
 //!
-//! Deliberately small and synchronous (embedded-hal style): the step generator decides *when* to
-//! step from [`Hal::now_us`], the HAL only carries it out. The controller tells its caller when it
-//! next needs to run ([`crate::Device::next_deadline_us`]), so host tests jump a mock clock straight
-//! to it. On the board, [`crate::timed::QueuedHal`] implements this trait with a clock that runs
-//! ahead of real time during moves and turns `step` / `set_direction` into timed events that a
-//! timer interrupt plays ([`crate::step_queue`]). A mock HAL records every call with its timestamp,
-//! so host tests can check step rates, accelerations and the arm-separation invariant.
+//! Synchronous and small (embedded-hal style): the step generator decides *when* to step from
+//! [`Clock::now_us`], the board only carries it out. [`Hal`] is all four, what the controller needs.
+//! On the board [`crate::timed::QueuedHal`] provides [`Clock`] and [`Steppers`] itself (a schedule
+//! clock and queued step events) over a board that only has the clock, switches and detector;
+//! host tests implement all four with a mock that records every call with its timestamp.
 
 use gonio_shared::msg::caps::MAX_CHANNELS;
 use gonio_shared::Axis;
@@ -15,24 +13,35 @@ use heapless::Vec;
 /// Counts per detector channel from one exposure.
 pub type Readout = Vec<u32, MAX_CHANNELS>;
 
-pub trait Hal {
+pub trait Clock {
     /// Monotonic time since boot, microseconds. Never goes backwards.
     fn now_us(&self) -> u64;
+}
 
+pub trait Steppers {
     /// Set the direction pin of `axis` (`true` = increasing step count). Takes effect before the
-    /// next [`Hal::step`] of that axis (the HAL honours the driver's direction setup time).
+    /// next [`Steppers::step`] of that axis (the driver's direction setup time is honoured).
     fn set_direction(&mut self, axis: Axis, increasing: bool);
 
     /// Emit one step pulse on `axis`.
     fn step(&mut self, axis: Axis);
+}
 
+pub trait Switches {
     /// Is the limit / home switch of `axis` closed? For a continuous axis this is its index sensor,
     /// which only homing looks at.
     fn limit_closed(&self, axis: Axis) -> bool;
+}
 
+pub trait Detector {
     /// Start an exposure of `exposure_us` microseconds (restarts one already running).
     fn start_exposure(&mut self, exposure_us: u32);
 
     /// The readout of the last exposure once it is complete, `None` while it is still running.
     fn poll_readout(&mut self) -> Option<Readout>;
 }
+
+/// Everything the controller drives; implemented for any type that has all four parts.
+pub trait Hal: Clock + Steppers + Switches + Detector {}
+
+impl<T: Clock + Steppers + Switches + Detector> Hal for T {}

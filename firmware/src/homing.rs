@@ -1,29 +1,5 @@
-//! Homing: find every axis's switch from any start, one axis at a time, then park it.
-//!
-//! Per axis: if its switch is already closed, back off [`BACKOFF_RAD`] away from it (a switch still
-//! closed after that is a fault); seek toward the switch over the axis's whole travel plus margins
-//! at [`SPEED_SCALE`] of its maximum speed, stopping on the step the switch closes; declare that
-//! position the home position; park the axis at its rest angle. Not finding the switch within the
-//! travel is `Fault::HomeNotFound`.
-//!
-//! Order: tilt and azimuth first, then the light arm (parked at +90 deg) and the detector (parked
-//! at -90 deg). Before both arms are homed their positions are unknown, so the separation invariant
-//! cannot be checked; parking the light at its rest angle before the detector moves keeps the
-//! detector's own seek and park moving away from the light for any legal start. From the moment
-//! both arms are homed every step is checked as in a plan move.
-//!
-//! Why the unchecked stages are safe from any pose a plan leaves (separation = light - detector,
-//! legal in `[blocking, 2 pi - blocking]`; the config check guarantees `light.max - detector.min
-//! <= 2 pi - blocking`): plan poses keep both arm angles inside (-90, +90) deg (the below-horizon
-//! check: cos theta = cos(tilt) cos(arm angle) > 0), so the detector is below `+90 deg - blocking`
-//! when the light, after seeking its max (which only widens the separation, within that bound),
-//! parks down to +90 deg; then the detector's seek toward its min widens it again and its park
-//! ends at the rest pose. What cannot be checked is a pose nobody knows: at power-up or after a limit fault, an arm
-//! left beyond +-90 deg by hand, or a light back-off from a switch closed at the start.
-//!
-//! The seek stops abruptly when the switch closes, at a quarter of the axis's top speed: the
-//! switch position is the reference, so no deceleration past it is wanted. On the board the stop
-//! is the switch's EXTI interrupt halting the step timer (`crate::step_queue`), within one step.
+//! Homing: find every axis's switch, one axis at a time, then park it; why the order is safe is in
+//! `docs/firmware.md`.
 
 use gonio_shared::instrument::{HomeSide, InstrumentConfig};
 use gonio_shared::kinematics::Kinematics;

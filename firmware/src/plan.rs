@@ -1,15 +1,11 @@
-//! Plan intake: the bounded ring of accepted directions, already turned into step targets.
-//!
-//! Every direction is checked when it arrives, not when it is reached: inverse kinematics from the
-//! previous accepted pose (so the solution branch is the one the move will actually start from),
-//! integer step targets, then the quantised pose against the soft limits and the separation guard.
-//! A direction that fails is rejected with its index and reason and nothing after it in its chunk
-//! is taken; the MCU never repairs a plan (Klipper's stance).
+//! Plan intake: the bounded ring of accepted directions, each checked and turned into step targets
+//! on arrival (`gonio_shared::acceptance`); a failing one is rejected, never repaired.
 
 use crate::capacity::PLAN_CAPACITY;
-use crate::separation::SeparationGuard;
+use gonio_shared::acceptance::check_direction;
 use gonio_shared::kinematics::{Kinematics, Steps, Unreachable};
-use gonio_shared::msg::{Direction, PlanChunk, RefuseReason};
+use gonio_shared::msg::{PlanChunk, RefuseReason};
+use gonio_shared::separation::SeparationGuard;
 use heapless::Deque;
 
 /// One accepted plan direction: its index and the step positions that measure it.
@@ -143,22 +139,4 @@ impl PlanQueue {
             }
         }
     }
-}
-
-/// The step targets that measure `d`, planned from the step positions `from`, or why it cannot be.
-pub fn check_direction(
-    kin: &Kinematics<f32>,
-    guard: &SeparationGuard,
-    d: &Direction,
-    from: &Steps,
-) -> Result<Steps, Unreachable> {
-    let current = kin.from_steps(from);
-    let pose = kin.inverse_angles(d.theta_i, d.phi_i, d.theta_o, d.phi_o, &current)?;
-    let steps = kin.to_steps(&pose)?;
-    // Rounding to steps may push an axis past a soft limit: check the pose actually reached.
-    kin.check_pose(&kin.from_steps(&steps))?;
-    if !guard.allows_target(&steps) {
-        return Err(Unreachable::Blocked);
-    }
-    Ok(steps)
 }

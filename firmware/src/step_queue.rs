@@ -1,29 +1,5 @@
-//! Timer-driven step pulses: a bounded queue of timed STEP/DIR events and the playback logic a timer
-//! interrupt runs, so pulse edges fall at their computed instants whatever the controller loop is
-//! doing.
-//!
-//! The split (see [`crate::timed`] for the producer side):
-//!
-//! - the controller runs up to [`LOOKAHEAD_US`](crate::timed::LOOKAHEAD_US) *ahead* of real time;
-//!   each `Hal::step` / `Hal::set_direction` becomes an event `(tick, axis, what)` pushed here;
-//! - a high-priority timer interrupt calls [`StepQueue::service`] at [`StepQueue::next_wake`]: it
-//!   lowers STEP pins whose pulse is over, applies every event that has come due (raise STEP, set
-//!   DIR) and says when to wake next. The board turns the returned [`Pins`] into one write of the
-//!   GPIO set/reset register (every STEP and DIR pin is on one port);
-//! - a limit switch's EXTI interrupt calls [`StepQueue::trip`]: if that switch is *armed* (the
-//!   controller would stop on it, [`crate::Device::stop_mask`]) playback stops at once, every
-//!   queued event is dropped and STEP goes low; the trip is latched until the controller loop
-//!   takes it ([`StepQueue::take_trip`]) and hands it to [`crate::Device::limit_tripped`].
-//!
-//! Ticks are the timer's counter (1 MHz on the board, i.e. the `Hal`'s microseconds modulo 2^32);
-//! every comparison is wrap-safe for events less than 2^31 ticks (35 min) apart.
-//!
-//! Pulse shape: STEP is high for at least [`PULSE_TICKS`], low for at least [`LOW_TICKS`] before the
-//! same axis rises again, and DIR changes at least [`DIR_SETUP_TICKS`] before that axis's next rising
-//! edge and never while its STEP is high. An event that would break one of these waits (and holds
-//! the events behind it: playback is in order); a delayed step is counted in [`QueueStats::late`].
-//! At 1 MHz the shape allows up to 1 / (3 + 3) us = 166 k steps/s per axis, far above any plan.
-//! A pulse followed within [`MERGE_TICKS`] by another axis's event ends in that event's wake-up.
+//! Timed STEP/DIR events and the playback a timer interrupt runs, so pulse edges fall at their
+//! computed instants whatever the controller loop is doing (`docs/firmware.md`).
 
 use crate::capacity::STEP_QUEUE_EVENTS;
 use gonio_shared::instrument::AXIS_COUNT;

@@ -1,24 +1,11 @@
-//! The step generator: one synchronised move at a time, step instants computed in real time.
-//!
-//! Every axis follows the shared unit profile of [`SyncMove`] (all axes start and stop together, a
-//! straight line in joint space, each axis within its own speed and acceleration). Axis `i` moving
-//! `n` steps emits its `k`-th step at the instant the ideal profile reaches `k / n` of the way,
-//! inverted in closed form per phase of the trapezoid (the exact-time form of AVR446):
-//!
-//! - accelerating: `t = sqrt(2 k / A)`, anchored at the start;
-//! - cruising: `t = t_ramp + (k - k_ramp) / V`, anchored at the start;
-//! - decelerating: `t = T - sqrt(2 (n - k) / A)`, anchored at the end, so every axis's last step
-//!   falls on the same microsecond `T` and the anchors keep f32 offsets small (sub-microsecond).
-//!
-//! One square root (`libm::sqrtf` via `Real`) and a few multiplies per step; nothing is
-//! precomputed per step, so a move of any length costs the same RAM. The emitted positions trail
-//! the ideal line by less than one step; see [`crate::separation`] for why that keeps the arms legal.
+//! The step generator: one synchronised trapezoidal move at a time, each step's instant computed in
+//! closed form when it is due (`docs/firmware.md`).
 
-use crate::hal::Hal;
-use crate::separation::SeparationGuard;
+use crate::hal::Steppers;
 use gonio_shared::instrument::{InstrumentConfig, AXES, AXIS_COUNT};
 use gonio_shared::kinematics::Steps;
 use gonio_shared::motion::SyncMove;
+use gonio_shared::separation::SeparationGuard;
 use gonio_shared::{Axis, Real};
 use heapless::Vec;
 
@@ -133,7 +120,7 @@ impl Stepper {
 
     /// Start the synchronised move to `target` at `now_us`, every axis limited to `speed_scale` of
     /// its configured maximum speed (1 for plan moves, less for homing).
-    pub fn start<H: Hal>(
+    pub fn start<H: Steppers>(
         &mut self,
         hal: &mut H,
         now_us: u64,
@@ -207,7 +194,12 @@ impl Stepper {
     /// Emit every step due at `now_us` (at most one per axis: a late call catches up on the next
     /// ones instead of bursting). With a `guard`, an arm step that would break the separation
     /// invariant is not emitted and the move stops with [`StepError::Blocked`].
-    pub fn poll<H: Hal>(&mut self, hal: &mut H, now_us: u64, guard: Option<&SeparationGuard>) -> Result<(), StepError> {
+    pub fn poll<H: Steppers>(
+        &mut self,
+        hal: &mut H,
+        now_us: u64,
+        guard: Option<&SeparationGuard>,
+    ) -> Result<(), StepError> {
         let Some(m) = self.active.first_mut() else {
             return Ok(());
         };

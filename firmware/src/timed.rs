@@ -1,24 +1,8 @@
-//! The controller ahead of real time, its steps played back by a timer: the board's [`Hal`].
-//!
-//! [`QueuedHal`] is a [`Hal`] whose clock is the controller's *schedule* clock: real time while
-//! nothing moves, up to [`LOOKAHEAD_US`] ahead of it during a move. `step` and `set_direction`
-//! do not touch pins; they queue an event at that schedule instant in the [`StepQueue`] the timer
-//! interrupt plays back ([`crate::step_queue`]). So the controller's timing cost, and anything else
-//! the CPU does (a host frame, USB), only has to keep the queue from running dry: the pulse edges
-//! themselves are as exact as the timer interrupt's latency.
-//!
-//! [`QueuedHal::run`] is the whole controller loop: take a latched limit trip and hand it to the
-//! controller, arm the switches the controller would stop on, and poll every deadline that falls
-//! within the horizon while the queue has room for one poll's events. The binary calls it after
-//! every received packet and at the instant it returns; host tests call it with a simulated clock
-//! and play the queue back as the timer would.
-//!
-//! Why settle and exposure stay on real time: the horizon is real time unless a move is in
-//! progress, so a settle that starts at the last step's *scheduled* instant ends, and the exposure
-//! starts, at the real instant it should.
+//! The controller ahead of real time, its steps queued for a timer to play: the board's HAL and loop
+//! (`docs/firmware.md`, "The board's step path").
 
 use crate::controller::TRANSITIONS_PER_POLL;
-use crate::hal::{Hal, Readout};
+use crate::hal::{Clock, Detector, Readout, Steppers, Switches};
 use crate::step_queue::StepQueue;
 use crate::Device;
 use gonio_shared::instrument::AXIS_COUNT;
@@ -38,20 +22,16 @@ pub const EVENTS_PER_POLL: usize = AXIS_COUNT * (1 + TRANSITIONS_PER_POLL);
 /// it stopped on this budget.
 pub const POLLS_PER_RUN: usize = 64;
 
-/// What the board does besides STEP/DIR.
-pub trait Board {
-    /// Real time, microseconds since boot (the step timer counts the same microseconds mod 2^32).
-    fn now_us(&self) -> u64;
-    /// The level of `axis`'s switch: closed?
-    fn switch_closed(&self, axis: Axis) -> bool;
-    fn start_exposure(&mut self, exposure_us: u32);
-    fn poll_readout(&mut self) -> Option<Readout>;
-}
-
 /// The [`StepQueue`] shared with the interrupts: a critical-section mutex on the board (which
 /// also re-arms the step timer after every access), a `RefCell` in tests.
 pub trait SharedQueue {
     fn with<R>(&self, f: impl FnOnce(&mut StepQueue) -> R) -> R;
+}
+
+impl SharedQueue for core::cell::RefCell<StepQueue> {
+    fn with<R>(&self, f: impl FnOnce(&mut StepQueue) -> R) -> R {
+        f(&mut self.borrow_mut())
+    }
 }
 
 /// Microseconds to step-timer ticks: the timer counts the same microseconds, modulo 2^32.
@@ -69,7 +49,7 @@ pub struct QueuedHal<B, Q> {
     dir: [Option<bool>; AXIS_COUNT],
 }
 
-impl<B: Board, Q: SharedQueue> QueuedHal<B, Q> {
+impl<B, Q> QueuedHal<B, Q> {
     pub fn new(board: B, queue: Q) -> Self {
         Self {
             board,
@@ -78,7 +58,9 @@ impl<B: Board, Q: SharedQueue> QueuedHal<B, Q> {
             dir: [None; AXIS_COUNT],
         }
     }
+}
 
+impl<B: Clock + Switches + Detector, Q: SharedQueue> QueuedHal<B, Q> {
     /// Run the controller up to the horizon. Returns the real instant to call again (`None`:
     /// only the host can make progress). Call it also after every `Device::receive`.
     pub fn run(&mut self, device: &mut Device) -> Option<u64> {
@@ -129,18 +111,15 @@ impl<B: Board, Q: SharedQueue> QueuedHal<B, Q> {
         let mask = device.stop_mask();
         self.queue.with(|q| q.set_armed(mask));
     }
+}
 
-    /// The schedule clock (for tests and the log).
-    pub fn schedule_us(&self) -> u64 {
+impl<B, Q> Clock for QueuedHal<B, Q> {
+    fn now_us(&self) -> u64 {
         self.now_us
     }
 }
 
-impl<B: Board, Q: SharedQueue> Hal for QueuedHal<B, Q> {
-    fn now_us(&self) -> u64 {
-        self.now_us
-    }
-
+impl<B, Q: SharedQueue> Steppers for QueuedHal<B, Q> {
     fn set_direction(&mut self, axis: Axis, increasing: bool) {
         let Some(last) = self.dir.get_mut(axis.index()) else {
             return;
@@ -160,11 +139,15 @@ impl<B: Board, Q: SharedQueue> Hal for QueuedHal<B, Q> {
         let t = tick(self.now_us);
         let _counted = self.queue.with(|q| q.push_step(axis, t));
     }
+}
 
+impl<B: Switches, Q> Switches for QueuedHal<B, Q> {
     fn limit_closed(&self, axis: Axis) -> bool {
-        self.board.switch_closed(axis)
+        self.board.limit_closed(axis)
     }
+}
 
+impl<B: Detector, Q> Detector for QueuedHal<B, Q> {
     fn start_exposure(&mut self, exposure_us: u32) {
         self.board.start_exposure(exposure_us);
     }

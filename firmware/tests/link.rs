@@ -311,7 +311,7 @@ fn a_host_that_never_reads_is_throttled_not_answered_with_lost_replies() {
         consumed < bytes.len(),
         "the device must stop reading when it cannot answer"
     );
-    assert_eq!(b.dev.link().lost_replies(), 0);
+    assert_eq!(b.dev.outbox().lost_replies(), 0);
     // Draining lets the rest through, and every request is answered.
     b.host_seq += 500;
     b.collect();
@@ -322,7 +322,7 @@ fn a_host_that_never_reads_is_throttled_not_answered_with_lost_replies() {
         .filter(|m| matches!(m, DeviceMsg::Status(_)))
         .count();
     assert_eq!(statuses, 500, "{} messages after the drain", b.log.len() - before);
-    assert_eq!(b.dev.link().lost_replies(), 0);
+    assert_eq!(b.dev.outbox().lost_replies(), 0);
 }
 
 /// `BAD_FRAME_FAULT_RUN` bad frames in a row raise `Fault::BadFrame`; one good frame in between

@@ -12,11 +12,11 @@
 mod common;
 
 use common::*;
-use gonio_firmware::plan::check_direction;
-use gonio_firmware::separation::SeparationGuard;
 use gonio_firmware::stepper::Stepper;
+use gonio_shared::acceptance::check_direction;
 use gonio_shared::instrument::{InstrumentConfig, AXES};
 use gonio_shared::msg::{ControllerState, DeviceMsg, Direction, HostMsg};
+use gonio_shared::separation::SeparationGuard;
 use gonio_shared::Axis;
 use proptest::prelude::*;
 
@@ -318,7 +318,7 @@ fn arms_approach_the_blocking_angle_as_close_as_allowed_and_no_closer() {
         closest = closest.min(sep - blocking);
     }
     // Within the guard band plus a step: the test really went to the edge.
-    let band = 2.0 * gonio_firmware::separation::QUANTISATION_STEPS as f64;
+    let band = 2.0 * gonio_shared::separation::QUANTISATION_STEPS as f64;
     assert!(
         closest < (band + 1.0) * step,
         "closest approach {closest} rad above the blocking angle"

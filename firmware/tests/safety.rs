@@ -305,7 +305,7 @@ fn commands_in_the_wrong_state_are_refused_with_a_reason() {
     assert!(refused(&b.send(HostMsg::Abort)).is_none());
     assert_eq!(b.dev.controller().state(), ControllerState::Ready);
     assert_eq!(b.status().plan_next, 0);
-    assert_eq!(b.dev.link().lost_replies(), 0);
+    assert_eq!(b.dev.outbox().lost_replies(), 0);
 }
 
 #[test]

@@ -159,7 +159,7 @@ fn ten_thousand_directions_stream_through_small_buffers_exactly_once_in_order() 
         paused_by_buffer > 0,
         "the host never let the measurement buffer fill up"
     );
-    assert_eq!(b.dev.link().lost_replies(), 0);
+    assert_eq!(b.dev.outbox().lost_replies(), 0);
     eprintln!(
         "streamed {PLAN_LEN} directions: {} frames lost, {resends} resend requests, {duplicates} duplicates dropped by the host, \
          {paused_by_buffer} buffer-full pauses, {} steps, {:.1} s simulated",

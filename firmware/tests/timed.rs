@@ -11,8 +11,8 @@ mod common;
 
 use common::*;
 use gonio_firmware::step_queue::{QueueStats, StepQueue};
-use gonio_firmware::timed::{tick, Board, QueuedHal, SharedQueue};
-use gonio_firmware::{Device, Readout};
+use gonio_firmware::timed::{tick, QueuedHal, SharedQueue};
+use gonio_firmware::{Clock, Detector, Device, Readout, Switches};
 use gonio_shared::frame::{Frame, FrameDecoder};
 use gonio_shared::instrument::{InstrumentConfig, AXES};
 use gonio_shared::msg::{ControllerState, DeviceMsg, Direction, Fault, Hello, HostMsg, Measurement, PlanChunk};
@@ -30,14 +30,20 @@ struct SimBoard {
     exposures: u32,
 }
 
-impl Board for SimBoard {
+impl Clock for SimBoard {
     fn now_us(&self) -> u64 {
         self.real
     }
-    fn switch_closed(&self, axis: Axis) -> bool {
+}
+
+impl Switches for SimBoard {
+    fn limit_closed(&self, axis: Axis) -> bool {
         let i = axis.index();
         self.forced & (1 << i) != 0 || self.switches[i].closed(self.pos[i])
     }
+}
+
+impl Detector for SimBoard {
     fn start_exposure(&mut self, exposure_us: u32) {
         self.exposures += 1;
         self.exposure_done = Some(self.real + exposure_us as u64);
@@ -144,15 +150,7 @@ impl Sim {
 
     fn isr(&mut self) {
         let now = self.hal.board.real;
-        let late0 = self.stats().late;
         let (pins, _) = self.hal.queue.with(|q| q.service(tick(now)));
-        if std::env::var("SIM_DEBUG").is_ok() && self.stats().late != late0 {
-            eprintln!(
-                "late at {now}: {pins:?} state {:?} sched {}",
-                self.dev.controller().state(),
-                self.hal.schedule_us()
-            );
-        }
         let b = &mut self.hal.board;
         for axis in AXES {
             let (i, bit) = (axis.index(), 1u8 << axis.index());
@@ -167,11 +165,11 @@ impl Sim {
         for axis in AXES {
             let (i, bit) = (axis.index(), 1u8 << axis.index());
             if pins.step_high & bit != 0 {
-                let was = self.hal.board.switch_closed(axis);
+                let was = self.hal.board.limit_closed(axis);
                 let b = &mut self.hal.board;
                 b.pos[i] += if b.dir[i] { 1 } else { -1 };
                 self.edges.push((now, axis));
-                if !was && self.hal.board.switch_closed(axis) {
+                if !was && self.hal.board.limit_closed(axis) {
                     closed_now |= bit;
                 }
             }
@@ -341,7 +339,7 @@ fn a_limit_switch_stops_playback_at_the_instant_it_closes_and_faults() {
     // On the board the switch interrupt can fire in the middle of a poll: what that poll queues
     // after the trip belongs to the halted move and must never play.
     for axis in [Axis::Light, Axis::Detector] {
-        gonio_firmware::Hal::step(&mut sim.hal, axis);
+        gonio_firmware::Steppers::step(&mut sim.hal, axis);
     }
     sim.run_until(u64::MAX, None);
     assert!(

@@ -203,12 +203,6 @@ impl<R: Real> InstrumentConfig<R> {
         }
     }
 
-    /// The same instrument with the azimuth stage in use (`false`) or parked (`true`).
-    pub fn with_isotropic(mut self, isotropic: bool) -> Self {
-        self.isotropic = isotropic;
-        self
-    }
-
     /// The reference instrument of the README (the same numbers as `examples/gonio.toml`).
     pub fn reference() -> Self {
         let d = |deg: f64| R::from_f64(deg.to_radians());

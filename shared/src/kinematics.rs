@@ -295,7 +295,11 @@ mod tests {
     use proptest::prelude::*;
 
     fn kin64(isotropic: bool) -> Kinematics<f64> {
-        Kinematics::new(InstrumentConfig::<f64>::reference().with_isotropic(isotropic)).unwrap()
+        Kinematics::new(InstrumentConfig {
+            isotropic,
+            ..InstrumentConfig::<f64>::reference()
+        })
+        .unwrap()
     }
 
     fn angle(a: Vec3<f64>, b: Vec3<f64>) -> f64 {
@@ -443,7 +447,11 @@ mod tests {
     #[test]
     fn hard_poses_in_f32_match_f64() {
         let k64 = kin64(false);
-        let k32 = Kinematics::new(InstrumentConfig::<f32>::reference().with_isotropic(false)).unwrap();
+        let k32 = Kinematics::new(InstrumentConfig {
+            isotropic: false,
+            ..InstrumentConfig::<f32>::reference()
+        })
+        .unwrap();
         let hard = [
             (0.0, 0.0, 45.0, 30.0),    // normal incidence
             (0.0, 0.0, 89.9, 0.0),     // normal in, grazing out

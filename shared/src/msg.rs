@@ -3,6 +3,7 @@
 //! Every collection is a `heapless` one with its capacity named in [`caps`], so both sides know the
 //! largest possible message at compile time and the firmware never allocates.
 
+use crate::frame::FrameError;
 use crate::instrument::{Axis, ConfigError, InstrumentConfig, AXIS_COUNT};
 use crate::kinematics::Unreachable;
 use heapless::Vec;
@@ -21,8 +22,8 @@ pub mod caps {
 /// Shape changes are caught by [`SCHEMA_HASH`] without anyone remembering to bump anything.
 pub const PROTOCOL_VERSION: u16 = 1;
 
-/// FNV-1a over the postcard schema of both message enums, computed at compile time.
-pub const SCHEMA_HASH: u32 = crate::schema_hash::schema_hash32(HostMsg::SCHEMA, DeviceMsg::SCHEMA);
+/// The postcard-schema key of both message enums, computed at compile time.
+pub const SCHEMA_HASH: u32 = crate::schema_hash::schema_hash32::<HostMsg, DeviceMsg>();
 
 /// One measurement direction pair, f32 radians in the sample's local frame
 /// (+z normal, +x tangent; wi toward the light, wo toward the detector).
@@ -184,6 +185,17 @@ pub enum NakReason {
     Sequence,
 }
 
+impl From<FrameError> for NakReason {
+    fn from(e: FrameError) -> Self {
+        match e {
+            FrameError::Crc => NakReason::Crc,
+            FrameError::Cobs => NakReason::Cobs,
+            FrameError::TooLong => NakReason::TooLong,
+            FrameError::TooShort | FrameError::Payload | FrameError::Encode => NakReason::Payload,
+        }
+    }
+}
+
 /// Faults stop motion; only the listed recovery clears them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
 pub enum Fault {
@@ -278,7 +290,7 @@ pub enum DeviceMsg {
 }
 
 #[cfg(test)]
-pub(crate) mod tests {
+mod tests {
     use super::*;
 
     #[test]
@@ -302,7 +314,7 @@ pub(crate) mod tests {
 
     /// The largest value of each variant that can carry variable-length data, with every varint
     /// at its widest; `MAX_PAYLOAD` must hold all of them.
-    pub(crate) fn largest_messages() -> (std::vec::Vec<HostMsg>, std::vec::Vec<DeviceMsg>) {
+    fn largest_messages() -> (std::vec::Vec<HostMsg>, std::vec::Vec<DeviceMsg>) {
         let dir = Direction {
             theta_i: f32::MAX,
             phi_i: f32::MAX,
@@ -377,8 +389,36 @@ pub(crate) mod tests {
         }
     }
 
+    #[test]
+    fn largest_messages_round_trip_through_a_frame() {
+        use crate::frame::{encode, Frame, FrameDecoder, MAX_WIRE_FRAME};
+        let (host, device) = largest_messages();
+        for m in host {
+            let mut out = [0u8; MAX_WIRE_FRAME];
+            let n = encode(7, &m, &mut out).unwrap();
+            let mut dec = FrameDecoder::new();
+            let got: std::vec::Vec<_> = out[..n].iter().filter_map(|&b| dec.push::<HostMsg>(b)).collect();
+            assert_eq!(got, std::vec![Ok(Frame { seq: 7, msg: m })]);
+        }
+        for m in device {
+            let mut out = [0u8; MAX_WIRE_FRAME];
+            let n = encode(9, &m, &mut out).unwrap();
+            let mut dec = FrameDecoder::new();
+            let got: std::vec::Vec<_> = out[..n].iter().filter_map(|&b| dec.push::<DeviceMsg>(b)).collect();
+            assert_eq!(got, std::vec![Ok(Frame { seq: 9, msg: m })]);
+        }
+    }
+
+    #[test]
+    fn every_frame_error_maps_to_a_nak_reason() {
+        assert_eq!(NakReason::from(FrameError::Crc), NakReason::Crc);
+        assert_eq!(NakReason::from(FrameError::Cobs), NakReason::Cobs);
+        assert_eq!(NakReason::from(FrameError::TooLong), NakReason::TooLong);
+        assert_eq!(NakReason::from(FrameError::TooShort), NakReason::Payload);
+    }
+
     /// Strategies producing every variant of both message enums, with values at their extremes.
-    pub(crate) mod arb {
+    mod arb {
         use super::super::*;
         use crate::instrument::{AxisConfig, HomeSide};
         use proptest::collection::vec as pvec;

@@ -155,8 +155,8 @@ impl Real for f32 {
 
 /// `sin` and `cos` computed in f32 alone (Cephes' `sinf`/`cosf`: a three-part Cody-Waite
 /// reduction by pi/4 and degree-7/8 polynomials on [-pi/4, pi/4]), within 2 ulp of the true
-/// value (tested). libm's `sinf`/`cosf` reduce and evaluate in f64, which on a Cortex-M4F means
-/// soft-float f64 and a Payne-Hanek reduction: about 4.5 KiB of the firmware's 64 KiB flash.
+/// value (tested). libm's `sinf`/`cosf` reduce and evaluate in f64, soft-float on a Cortex-M4F
+/// (its flash cost: `docs/firmware.md`).
 ///
 /// The reduction is exact for `|x| <= LIMIT` (8192 rad, about 1300 turns); beyond it, and for
 /// NaN and infinities, the result is NaN, which the kinematics reject as `NotFinite`.

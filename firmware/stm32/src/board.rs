@@ -25,8 +25,8 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_time::Instant;
 use gonio_firmware::step_queue::{Pins, StepQueue};
-use gonio_firmware::timed::{tick, Board, SharedQueue};
-use gonio_firmware::Readout;
+use gonio_firmware::timed::{tick, SharedQueue};
+use gonio_firmware::{Clock, Detector, Readout, Switches};
 use gonio_shared::Axis;
 
 /// SYSCLK; TIM2's clock is the APB1 timer clock, also 96 MHz (APB1 /2, timers x2).
@@ -205,7 +205,7 @@ pub struct AxisPins {
     pub enable: [Output<'static>; 4],
 }
 
-pub struct Detector {
+pub struct AdcDetector {
     pub adc: Adc<'static, ADC1>,
     /// One per reported channel (`gonio_shared::msg::caps::MAX_CHANNELS` = 4).
     pub channels: [AnyAdcChannel<'static, ADC1>; 4],
@@ -217,18 +217,18 @@ struct Exposure {
     exposure_us: u32,
 }
 
-/// The board I/O besides STEP/DIR: switch levels, the detector, the clock.
+/// The board I/O besides STEP/DIR (which `QueuedHal` queues for TIM2): switch levels, the detector, the clock.
 pub struct BoardIo {
     /// Home / limit switch per axis, closed = low, each on its own EXTI line.
     limit: [ExtiInput<'static, Blocking>; 4],
-    detector: Detector,
+    detector: AdcDetector,
     exposure: Option<Exposure>,
     #[allow(dead_code, reason = "kept only so the pins stay configured and driven")]
     pins: AxisPins,
 }
 
 impl BoardIo {
-    pub fn new(pins: AxisPins, limit: [ExtiInput<'static, Blocking>; 4], detector: Detector) -> Self {
+    pub fn new(pins: AxisPins, limit: [ExtiInput<'static, Blocking>; 4], detector: AdcDetector) -> Self {
         Self {
             limit,
             detector,
@@ -257,15 +257,19 @@ impl BoardIo {
     }
 }
 
-impl Board for BoardIo {
+impl Clock for BoardIo {
     fn now_us(&self) -> u64 {
         Instant::now().as_micros()
     }
+}
 
-    fn switch_closed(&self, axis: Axis) -> bool {
+impl Switches for BoardIo {
+    fn limit_closed(&self, axis: Axis) -> bool {
         self.limit.get(axis.index()).is_some_and(ExtiInput::is_low)
     }
+}
 
+impl Detector for BoardIo {
     fn start_exposure(&mut self, exposure_us: u32) {
         self.exposure = Some(Exposure {
             done_us: self.now_us().saturating_add(u64::from(exposure_us)),

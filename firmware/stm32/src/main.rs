@@ -19,7 +19,7 @@
 
 mod board;
 
-use board::{AxisPins, BoardIo, CsQueue, Detector, SYSCLK_HZ};
+use board::{AdcDetector, AxisPins, BoardIo, CsQueue, SYSCLK_HZ};
 use defmt::{info, warn};
 use defmt_rtt as _;
 use embassy_executor::Spawner;
@@ -43,8 +43,8 @@ use gonio_shared::msg::{ControllerState, Fault};
 use static_cell::{ConstStaticCell, StaticCell};
 
 /// Log where, then stop in a `udf` the probe reports as a HardFault. The panic *message* is not
-/// printed: formatting it would link `core::fmt` (~3 KiB of a flash budget with none to spare),
-/// and no panic can come from wire data (the logic crate's rule), only from start-up `expect`s.
+/// printed: formatting it would link `core::fmt` (docs/firmware.md, "Flash and RAM"); no panic can
+/// come from wire data (the logic crate's rule), only from start-up `expect`s.
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
     match info.location() {
@@ -139,7 +139,7 @@ async fn main(spawner: Spawner) {
         ExtiInput::new_blocking(p.PB5, p.EXTI5, Pull::Up, TriggerEdge::Falling),
     ];
     // Internal-ADC detector: ADC1_IN4..IN7 on PA4..PA7, channel order = readout order.
-    let detector = Detector {
+    let detector = AdcDetector {
         adc: Adc::new(p.ADC1),
         channels: [
             p.PA4.degrade_adc(),
@@ -151,10 +151,9 @@ async fn main(spawner: Spawner) {
     board::start_step_timer(p.TIM2);
     let hal = QueuedHal::new(BoardIo::new(pins, limit, detector), CsQueue);
 
-    // The controller (~20 KiB). `Device::new()` is const and all-zero, so this static lands in .bss
-    // (zeroed by the runtime, no flash image, no copy through the stack); `StaticCell::init_with`
-    // built it on the stack first (a 25 KiB frame at boot). Check `data` in `arm-none-eabi-size`
-    // stays small if `Device::new` ever changes.
+    // `Device::new()` is const and all-zero, so this static lands in .bss (zeroed by the runtime, no
+    // flash image, no copy through the stack). Check `data` in `arm-none-eabi-size` stays small if
+    // `Device::new` ever changes.
     static DEVICE: ConstStaticCell<Device> = ConstStaticCell::new(Device::new());
     let device = DEVICE.take();
 

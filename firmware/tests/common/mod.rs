@@ -3,7 +3,7 @@
 //! decodes the device's replies and drives the clock from `Device::next_deadline_us`.
 #![allow(dead_code)]
 
-use gonio_firmware::{Device, Hal, Readout};
+use gonio_firmware::{Clock, Detector, Device, Readout, Steppers, Switches};
 use gonio_shared::frame::{encode, Frame, FrameDecoder, MAX_WIRE_FRAME};
 use gonio_shared::instrument::{AxisConfig, HomeSide, InstrumentConfig, AXES};
 use gonio_shared::kinematics::Kinematics;
@@ -130,10 +130,13 @@ impl MockHal {
     }
 }
 
-impl Hal for MockHal {
+impl Clock for MockHal {
     fn now_us(&self) -> u64 {
         self.now
     }
+}
+
+impl Steppers for MockHal {
     fn set_direction(&mut self, axis: Axis, increasing: bool) {
         self.dir[axis.index()] = increasing;
     }
@@ -155,10 +158,16 @@ impl Hal for MockHal {
             }
         }
     }
+}
+
+impl Switches for MockHal {
     fn limit_closed(&self, axis: Axis) -> bool {
         let i = axis.index();
         self.forced_closed[i].is_some_and(|t| self.now >= t) || self.switches[i].closed(self.pos[i])
     }
+}
+
+impl Detector for MockHal {
     fn start_exposure(&mut self, exposure_us: u32) {
         self.exposures.push((self.now, exposure_us));
         self.exposure_done_us = Some(self.now + exposure_us as u64);

@@ -472,20 +472,20 @@ fn nudge(
     None
 }
 
-/// The firmware's acceptance test of one direction (`gonio_firmware::plan::check_direction`: f32
+/// The firmware's acceptance test of one direction (`gonio_shared::acceptance::check_direction`: f32
 /// IK, rounding to steps, the soft limits of the pose the steps reach, and the arms' separation
 /// guard band), from the rest pose. The f64 kinematics alone accept directions at the blocked
 /// cone's exact edge, where nudged nodes land, and the firmware's guard band refuses them.
 struct FirmwareCheck {
     kin: Kinematics<f32>,
-    guard: gonio_firmware::separation::SeparationGuard,
+    guard: gonio_shared::separation::SeparationGuard,
 }
 
 impl FirmwareCheck {
     fn new(instrument: &InstrumentConfig<f64>) -> Result<Self, PlanError> {
         let kin = Kinematics::<f32>::new(instrument.cast::<f32>())
             .map_err(|e| PlanError::Invalid(format!("instrument: {e:?}")))?;
-        let guard = gonio_firmware::separation::SeparationGuard::new(&kin);
+        let guard = gonio_shared::separation::SeparationGuard::new(&kin);
         Ok(Self { kin, guard })
     }
 
@@ -500,7 +500,7 @@ impl FirmwareCheck {
             theta_o: theta_of(wo) as f32,
             phi_o: phi_of(wo) as f32,
         };
-        gonio_firmware::plan::check_direction(&self.kin, &self.guard, &d, &self.rest_steps()?).map(|_| ())
+        gonio_shared::acceptance::check_direction(&self.kin, &self.guard, &d, &self.rest_steps()?).map(|_| ())
     }
 }
 
@@ -1048,7 +1048,7 @@ impl Plan {
         let mut motion = 0.0;
         let to64 = |q: Pose<f32>| Pose::from_array(q.to_array().map(f64::from));
         for (index, d) in decoded.iter().enumerate() {
-            let next = gonio_firmware::plan::check_direction(&fw.kin, &fw.guard, d, &cur)
+            let next = gonio_shared::acceptance::check_direction(&fw.kin, &fw.guard, d, &cur)
                 .map_err(|reason| PlanError::Unreachable { index, reason })?;
             motion += order::move_seconds(
                 instrument,

@@ -1,15 +1,9 @@
-//! The arm-separation invariant: the light stays counter-clockwise of the detector by a separation in
-//! `[blocking, 2 pi - blocking]`, so the arms never collide or shadow the sample.
-//!
-//! The step generator checks it before every arm step ([`SeparationGuard::allows`]). Plan intake is
-//! stricter ([`SeparationGuard::allows_target`]): a synchronised move is a straight line in joint
-//! space, so the *ideal* separation between two legal end poses stays legal, but the emitted step
-//! positions trail the ideal line by less than one step per arm. Requiring targets to clear the
-//! blocking angle by [`QUANTISATION_STEPS`] steps of each arm keeps every intermediate step position
-//! legal, so the per-step check never has to stop a move that intake accepted.
+//! The arm-separation invariant (light counter-clockwise of the detector by `[blocking, 2 pi -
+//! blocking]`), checked per arm step and, with a guard band, per plan target (`docs/firmware.md`).
 
-use gonio_shared::kinematics::{Kinematics, Steps};
-use gonio_shared::{Axis, Real};
+use crate::instrument::Axis;
+use crate::kinematics::{Kinematics, Steps};
+use crate::real::Real;
 
 /// Guard band of plan targets, in steps of each arm: one step of quantisation lag plus half a step
 /// of margin for f32 rounding in the step timing.
