@@ -217,7 +217,6 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
         spacing: args.spacing,
         k: args.incoming,
         grids: super::square_grids(max_level),
-        ..PlanConfig::default()
     };
     let planner = Planner::new(instrument, estimate.clone())?;
     let t0 = std::time::Instant::now();

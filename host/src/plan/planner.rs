@@ -55,6 +55,13 @@ struct Slices<'a> {
     fine: (usize, usize),
 }
 
+/// Every level ordered and timed: the directions, the level summaries and the order (indices in `dirs`).
+struct Ordered {
+    directions: Vec<PlannedDirection>,
+    levels: Vec<LevelSummary>,
+    order: Vec<usize>,
+}
+
 /// Where the ordering stands between levels: the last pose of both orders and the running totals.
 struct Cursor {
     pose: Pose<f64>,
@@ -123,7 +130,11 @@ impl Planner {
             fine,
         };
         let generation = self.generate(&config.grids, &slices);
-        let (directions, levels, order) = self.order_levels(&generation)?;
+        let Ordered {
+            directions,
+            levels,
+            order,
+        } = self.order_levels(&generation)?;
         // dirs index -> order index.
         let mut where_ = vec![0usize; generation.dirs.len()];
         for (o, &g) in order.iter().enumerate() {
@@ -224,11 +235,8 @@ impl Planner {
     }
 
     /// Order each level's directions after the previous level's last pose; time both orders by
-    /// replaying the IK. Returns the directions, the level summaries and the order (indices in `dirs`).
-    fn order_levels(
-        &self,
-        g: &Generation,
-    ) -> Result<(Vec<PlannedDirection>, Vec<LevelSummary>, Vec<usize>), PlanError> {
+    /// replaying the IK.
+    fn order_levels(&self, g: &Generation) -> Result<Ordered, PlanError> {
         let rest = self.kin.rest_pose();
         let mut cursor = Cursor {
             pose: rest,
@@ -242,7 +250,11 @@ impl Planner {
         for &range in &g.ranges {
             levels.push(self.order_level(g, range, &mut cursor, &mut directions, &mut order)?);
         }
-        Ok((directions, levels, order))
+        Ok(Ordered {
+            directions,
+            levels,
+            order,
+        })
     }
 
     /// Order and time one level (`range` = (level, n, m, first, end) in `dirs`), appending its

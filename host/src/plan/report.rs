@@ -419,7 +419,6 @@ pub fn run(
                 spacing: cfg.spacing,
                 k: cfg.k,
                 grids: super::square_grids(cfg.max_level),
-                ..PlanConfig::default()
             };
             let e = evaluate(
                 &mut scorer,

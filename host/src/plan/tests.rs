@@ -1,10 +1,10 @@
 use super::*;
 use crate::brdf::frame::from_spherical;
-use gonio_shared::kinematics::Kinematics;
-use order::Candidates;
 use crate::instrument::default_instrument;
 use crate::reconstruct::prior::sharp_lobe_floor;
 use crate::reconstruct::{reconstruct, reconstruct_with, NoPrior, Prior, TwoLobesPrior, SHARP_FLOOR_SHARE};
+use gonio_shared::kinematics::Kinematics;
+use order::Candidates;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

@@ -193,7 +193,6 @@ impl ScanRecord {
             spacing,
             k: self.incoming,
             grids: crate::plan::square_grids(self.max_level),
-            ..PlanConfig::default()
         })
     }
 
