@@ -6,7 +6,7 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Through
 use glam::{DVec2, DVec3};
 use gonio::brdf::analytic::{Ggx, Lambert, Ward};
 use gonio::brdf::frame::from_spherical;
-use gonio::brdf::grid::{incident_thetas, MeasurementGrid};
+use gonio::brdf::grid::{MeasurementGrid, NodeLayout, THETA_I_MAX};
 use gonio::brdf::merl::{Lookup, MerlTable};
 use gonio::brdf::nbrdf::NeuralBrdf;
 use gonio::brdf::rgl::{tabulate_ggx, RglBsdf};
@@ -24,6 +24,35 @@ fn pairs() -> Vec<(DVec3, DVec3)> {
     let dir =
         |rng: &mut ChaCha8Rng| from_spherical(rng.random::<f64>().acos(), std::f64::consts::TAU * rng.random::<f64>());
     (0..BATCH).map(|_| (dir(&mut rng), dir(&mut rng))).collect()
+}
+
+/// `material` measured on a nested N x N grid of `warp`'s slices at K equal-angle elevations.
+fn measured_grid(material: &dyn Material, warp: WarpKind, k: usize, n: usize) -> Option<MeasurementGrid> {
+    let thetas: Vec<f64> = (0..k).map(|i| i as f64 / (k - 1) as f64 * THETA_I_MAX).collect();
+    let slices = thetas
+        .iter()
+        .map(|&t| warp.for_incident(from_spherical(t, 0.0)))
+        .collect();
+    let cells = k * n * n;
+    let mut grid = MeasurementGrid::from_slices(
+        slices,
+        NodeLayout::Nested,
+        thetas,
+        n,
+        n,
+        vec![DVec3::ZERO; cells],
+        vec![false; cells],
+    )
+    .ok()?;
+    for kk in 0..k {
+        for j in 0..n {
+            for i in 0..n {
+                let v = grid.node_directions(kk, i, j).map(|(wi, wo)| material.eval(wi, wo));
+                grid.set_node(kk, i, j, v);
+            }
+        }
+    }
+    Some(grid)
 }
 
 fn eval(c: &mut Criterion) {
@@ -59,7 +88,7 @@ fn eval(c: &mut Criterion) {
     if let Ok(r) = RglBsdf::from_bytes(&tabulate_ggx(&ggx, 0.2, 8, 128, 64), Path::new("bench.bsdf")) {
         materials.push(("rgl", Box::new(r)));
     }
-    if let Ok(g) = MeasurementGrid::measure(&ggx, WarpKind::GgxVndf { alpha: 0.2 }, incident_thetas(8), 32, 32) {
+    if let Some(g) = measured_grid(&ggx, WarpKind::GgxVndf { alpha: 0.2 }, 8, 32) {
         materials.push(("grid-32x32-vndf", Box::new(g)));
     }
     let pairs = pairs();

@@ -20,7 +20,8 @@ use gonio::encoder::infer::Encoder;
 use gonio::encoder::ModelKind;
 use gonio::plan::report::Scorer;
 use gonio::plan::tradeoff::{capture_photo, photo_estimate};
-use gonio::plan::{FittedPrior, PlanConfig, Planner, Strategy};
+use gonio::plan::{PlanConfig, Planner, Strategy};
+use gonio::reconstruct::FittedPrior;
 use gonio::render::scene::{DeltaLight, Scene};
 
 /// Band edges in theta_h (degrees); the last band holds pixels facing away from the half vector.
@@ -86,7 +87,7 @@ fn main() -> anyhow::Result<()> {
                 ..PlanConfig::default()
             };
             let plan = Planner::new(instrument, estimate.clone())?.plan(&config)?;
-            let rec = plan.reconstruct(level, &plan.measure(truth.as_ref()))?;
+            let rec = gonio::reconstruct::reconstruct(&plan, level, &plan.measure(truth.as_ref()))?;
             let summary = plan.level(level).context("no such level")?;
             let img = scorer.render(Box::new(rec.clone()));
             let (c, map) = gonio::render::metrics::compare(&truth_img, &img)?;

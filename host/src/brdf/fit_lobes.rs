@@ -1,22 +1,8 @@
-//! Fit a Lambert term plus two GGX lobes to sampled values: the shape of most MERL paints and
-//! plastics (a sharp clear-coat peak over a broad glossy lobe), which one GGX lobe cannot hold:
-//! fitted to samples of the peak it loses the halo, fitted to the halo it loses the peak.
-//!
-//! Each lobe carries a bounded Schlick Fresnel rise toward grazing (`F0_MIN`): the MERL plastics and
-//! paints brighten there far more than a Fresnel-free GGX lobe can, and without it the residual
-//! grid had to carry the whole grazing rise across coarse cells.
-//!
-//! The diffuse base is two non-negative terms, a Lambert one and a coated one that darkens toward
-//! grazing (`coated_diffuse_shape`); the fit picks their mix per channel.
-//!
-//! Loss: as `fit::fit_samples`, the weighted least squares on log(1 + f cos theta_o). For a pair
-//! of roughnesses (alpha_sharp < alpha_broad) the six non-negative coefficients per channel (kd,
-//! two per lobe: its plain and its Fresnel-rising column, and kc) enter linearly inside the log:
-//! projected Gauss-Newton, each step an exact six-variable non-negative least squares (every
-//! active set tried). The roughness pair is searched on a log grid over [2e-3, 1] with the broad
-//! lobe at least `MIN_RATIO` times rougher, so the two lobes cannot both describe one feature.
+//! Fit Lambert plus a coated diffuse plus two GGX lobes with a bounded Fresnel rise to sampled
+//! values: the log(1 + f cos) loss, the roughness pair on a log grid (docs/planner.md, "The two-lobe fit").
 
 use super::analytic::ggx_specular;
+use super::log_nnls::solve_capped;
 use super::Material;
 use glam::DVec3;
 use std::f64::consts::FRAC_1_PI;
@@ -27,20 +13,10 @@ const ALPHA_MAX: f64 = 1.0;
 const ALPHA_STEPS: usize = 20;
 /// The broad lobe is at least this many times rougher than the sharp one.
 const MIN_RATIO: f64 = 2.5;
-/// Gauss-Newton iterations per roughness pair (the linear start is usually close).
-const GN_ITERATIONS: usize = 12;
-/// Smallest normal-incidence reflectance F0 a lobe's Fresnel rise may imply: its colour at grazing
-/// is at most 1 / F0_MIN times its colour at normal incidence (Schlick). 0.02 is water's F0
-/// (n = 1.33), about the lowest of common dielectrics; metals rise far less. Bounded so that a
-/// few grazing samples cannot buy a lobe an unphysical rise: in a trial with the rise free, a
-/// 2 x 2 plan of polyurethane-foam (24 samples) fitted a grazing colour 3000x its lobe's, and its
-/// brdf_log_err was ten times the bounded fit's. Chosen against 0.04 and 0.1 on the 14
-/// training-set MERL materials of docs/tradeoff/README.md.
+/// Smallest normal-incidence reflectance a lobe's Fresnel rise may imply: kg <= ks / F0_MIN (water's F0).
 pub const F0_MIN: f64 = 0.02;
 
-/// `DiffuseBound::BelowDarkest` reads only samples with both directions at least this far above
-/// the horizon (cos theta): real and MERL materials darken toward grazing (shadowing), which a
-/// Lambert term cannot, so a grazing sample would cap the diffuse below the whole rest.
+/// `DiffuseBound::BelowDarkest` reads only samples with both directions above 80 deg (cos theta).
 const CAP_MIN_COS: f64 = 0.17364817766693041; // cos 80 deg
 
 /// Lambert plus a coated diffuse term plus two GGX lobes (Smith masking; `analytic::ggx_specular`),
@@ -62,12 +38,8 @@ pub struct TwoLobes {
     pub coated: DVec3,
 }
 
-/// The grazing falloff of a diffuse base under a smooth coat (Ashikhmin and Shirley 2000:
-/// (1 - (1 - cos theta / 2)^5) per direction), normalised to 1 at normal incidence: 1 at
-/// theta_i = theta_o = 0, 0 when either direction is at the horizon. Why: the Lambert term cannot
-/// darken toward grazing, and the MERL plastics and paints do. Where no node is (beyond the last
-/// ring of a coarse level, where the residual is held) the prior's shape is all there is, and a
-/// flat Lambert there left the rim of the capture sphere too bright (docs/tradeoff/README.md).
+/// The grazing falloff of a diffuse base under a smooth coat, (1 - (1 - cos theta / 2)^5) per
+/// direction (Ashikhmin and Shirley 2000), normalised to 1 at normal incidence, 0 at the horizon.
 pub fn coated_diffuse_shape(wi: DVec3, wo: DVec3) -> f64 {
     // 1 - (1/2)^5 at normal incidence; cos is clamped to [0, 1], so the shape is in [0, 1].
     const NORMAL: f64 = 1.0 - 1.0 / 32.0;
@@ -123,12 +95,8 @@ pub struct TwoLobeFit {
     pub rms_log_error: f64,
 }
 
-/// Fit `TwoLobes` to `values[i]` = f(pairs[i]) with weights (see `fit::fit_samples`: below-horizon
-/// pairs, negative or non-finite weights and non-finite values drop out), the sharp lobe no sharper
-/// than `min_alpha`. Why a floor: between its samples a lobe far sharper than their spacing is
-/// unconstrained, and a razor-thin lobe that fits a few samples' noise puts a huge spike at every
-/// mirror direction the samples missed. The caller knows how sharp a lobe its data can resolve
-/// (a plan: the estimate it placed its nodes for). Panics if the lengths differ.
+/// Fit `TwoLobes` to `values[i]` = f(pairs[i]) with weights (as `fit::fit_samples`), the sharp lobe
+/// no sharper than `min_alpha`, which the caller knows its data resolve. Panics if the lengths differ.
 pub fn fit_two_lobes(pairs: &[(DVec3, DVec3)], values: &[DVec3], weights: &[f64], min_alpha: f64) -> TwoLobeFit {
     fit_two_lobes_with(pairs, values, weights, min_alpha, LobeFresnel::Bounded)
 }
@@ -147,16 +115,7 @@ pub enum LobeFresnel {
 pub enum DiffuseBound {
     /// Any non-negative albedo.
     Free,
-    /// Per channel, kd / pi at most the darkest kept sample's value, among samples with both
-    /// directions within 80 deg of the normal (`CAP_MIN_COS`). Every term of the model is
-    /// non-negative, so no material of this family is darker anywhere than its Lambert term: the
-    /// bound only removes fits the samples themselves contradict. Why it matters: a plan that
-    /// crowds a sharp peak (2 x 2 of a mirror-like metal: a peak and two shoulder samples per
-    /// slice) never samples the far field, and a free fit explains the shoulders with a Lambert
-    /// term that lights the whole hemisphere 6-13x too bright (tungsten-carbide; see
-    /// docs/tradeoff/README.md). On the training set it did not pay (it costs at fine levels, where
-    /// the darkest samples sit in the shadowed grazing band): `--prior two-lobes-capped` is an
-    /// ablation, not the default.
+    /// Per channel, kd / pi at most the darkest sample's value within 80 deg of the normal (a trial).
     BelowDarkest,
 }
 
@@ -182,76 +141,9 @@ pub fn fit_two_lobes_bounded(
 ) -> TwoLobeFit {
     assert_eq!(pairs.len(), values.len(), "one value per direction pair");
     assert_eq!(pairs.len(), weights.len(), "one weight per direction pair");
-    // Keep only the samples that carry weight (guards as in fit::fit_samples).
-    let mut cos_o = Vec::new();
-    let mut w = Vec::new();
-    let mut kept = Vec::new();
-    let mut target: [Vec<f64>; 3] = [Vec::new(), Vec::new(), Vec::new()];
-    for (i, &(wi, wo)) in pairs.iter().enumerate() {
-        let wt = if weights[i].is_finite() {
-            weights[i].max(0.0)
-        } else {
-            0.0
-        };
-        let v = values[i];
-        if !(wo.z > 0.0 && wi.z > 0.0) || wt == 0.0 || !v.is_finite() {
-            continue;
-        }
-        cos_o.push(wo.z);
-        w.push(wt);
-        kept.push((wi, wo));
-        for c in 0..3 {
-            target[c].push((v[c].max(0.0) * wo.z).ln_1p());
-        }
-    }
-    // The Lambert cap per channel (albedo units: kd / pi <= min f); infinite when free or when no
-    // kept sample is above the grazing band. Guard: the values were clamped at 0 above, so a finite
-    // cap is >= 0.
-    let cap: [f64; 3] = std::array::from_fn(|c| match bound {
-        DiffuseBound::Free => f64::INFINITY,
-        DiffuseBound::BelowDarkest => target[c]
-            .iter()
-            .zip(&kept)
-            .filter(|(_, (wi, wo))| wi.z.min(wo.z) >= CAP_MIN_COS)
-            .map(|(t, (_, wo))| t.exp_m1() / wo.z * std::f64::consts::PI)
-            .fold(f64::INFINITY, f64::min),
-    });
-    let alphas: Vec<f64> = (0..=ALPHA_STEPS)
-        .map(|i| (ALPHA_MIN.ln() + (ALPHA_MAX / ALPHA_MIN).ln() * i as f64 / ALPHA_STEPS as f64).exp())
-        .collect();
-    // The specular factor of every candidate roughness at every kept sample, times cos_o.
-    let basis: Vec<Vec<f64>> = alphas
-        .iter()
-        .map(|&a| {
-            kept.iter()
-                .zip(&cos_o)
-                .map(|(&(wi, wo), c)| ggx_specular(wi, wo, a) * c)
-                .collect()
-        })
-        .collect();
-    let diffuse: Vec<f64> = cos_o.iter().map(|c| c * FRAC_1_PI).collect();
-    let coated: Vec<f64> = kept
-        .iter()
-        .zip(&cos_o)
-        .map(|(&(wi, wo), c)| c * FRAC_1_PI * coated_diffuse_shape(wi, wo))
-        .collect();
-    // Each lobe enters as two columns, its GGX factor S and S (1 + (1/F0_MIN - 1) x) (x the
-    // Schlick weight): non-negative coefficients (c0, c1) span exactly the lobes whose colour rises
-    // from ks = c0 + c1 at normal incidence to kg = c0 + c1 / F0_MIN at grazing, ks <= kg <= ks / F0_MIN.
-    let rise = 1.0 / F0_MIN - 1.0;
-    let fresnel_cols: Vec<f64> = kept
-        .iter()
-        .map(|&(wi, wo)| 1.0 + rise * schlick_weight(wi, wo))
-        .collect();
-    // Each roughness's Fresnel-rising column, built once (empty when the rise is off).
-    let rising: Vec<Vec<f64>> = match fresnel {
-        LobeFresnel::Bounded => basis
-            .iter()
-            .map(|b| b.iter().zip(&fresnel_cols).map(|(v, f)| v * f).collect())
-            .collect(),
-        LobeFresnel::None => Vec::new(),
-    };
-    let to_colours = |c0: f64, c1: f64| -> (f64, f64) { (c0 + c1, c0 + c1 / F0_MIN) };
+    let kept = Kept::of(pairs, values, weights);
+    let cap = kept.diffuse_caps(bound);
+    let cols = Columns::of(&kept, fresnel);
     let mut best: Option<(f64, usize, usize, [[f64; 6]; 3])> = None;
     // Guard: a non-finite floor is no floor; one above the grid leaves only the roughest pair.
     let min_alpha = if min_alpha.is_finite() {
@@ -259,6 +151,7 @@ pub fn fit_two_lobes_bounded(
     } else {
         0.0
     };
+    let alphas = &cols.alphas;
     for s in 0..alphas.len() {
         // The grid point at or just below the floor stays, so the floor is never skipped over.
         if alphas.get(s + 1).is_some_and(|&next| next <= min_alpha) {
@@ -268,72 +161,188 @@ pub fn fit_two_lobes_bounded(
             if alphas[b] < MIN_RATIO * alphas[s] {
                 continue;
             }
-            // coeffs[c] = [kd, ks_sharp, kg_sharp, ks_broad, kg_broad, kc].
-            let mut coeffs = [[0.0; 6]; 3];
-            let mut loss = 0.0;
-            for c in 0..3 {
-                let (x, l) = match fresnel {
-                    LobeFresnel::Bounded => {
-                        let cols = [
-                            &diffuse[..],
-                            &basis[s][..],
-                            &rising[s][..],
-                            &basis[b][..],
-                            &rising[b][..],
-                            &coated[..],
-                        ];
-                        let (x, l) = solve_capped(&cols, &target[c], &w, cap[c]);
-                        let (ks, kg) = to_colours(x[1], x[2]);
-                        let (bs, bg) = to_colours(x[3], x[4]);
-                        ([x[0], ks, kg, bs, bg, x[5]], l)
-                    }
-                    LobeFresnel::None => {
-                        let (x, l) = solve_capped(
-                            &[&diffuse[..], &basis[s][..], &basis[b][..], &coated[..]],
-                            &target[c],
-                            &w,
-                            cap[c],
-                        );
-                        ([x[0], x[1], x[1], x[2], x[2], x[3]], l)
-                    }
-                };
-                coeffs[c] = x;
-                loss += l;
-            }
+            let (coeffs, loss) = cols.fit_pair(&kept, &cap, s, b, fresnel);
             if best.is_none_or(|(l, ..)| loss < l) {
                 best = Some((loss, s, b, coeffs));
             }
         }
     }
-    let total_w: f64 = w.iter().sum::<f64>().max(f64::MIN_POSITIVE);
+    let total_w: f64 = kept.w.iter().sum::<f64>().max(f64::MIN_POSITIVE);
     match best {
         Some((loss, s, b, x)) => TwoLobeFit {
-            model: TwoLobes {
-                diffuse: DVec3::new(x[0][0], x[1][0], x[2][0]),
-                sharp_alpha: alphas[s],
-                sharp: DVec3::new(x[0][1], x[1][1], x[2][1]),
-                broad_alpha: alphas[b],
-                broad: DVec3::new(x[0][3], x[1][3], x[2][3]),
-                sharp_grazing: DVec3::new(x[0][2], x[1][2], x[2][2]),
-                broad_grazing: DVec3::new(x[0][4], x[1][4], x[2][4]),
-                coated: DVec3::new(x[0][5], x[1][5], x[2][5]),
-            },
+            model: model_of(&x, alphas[s], alphas[b]),
             rms_log_error: (loss / (3.0 * total_w)).sqrt(),
         },
         // No usable sample: a black material.
         None => TwoLobeFit {
-            model: TwoLobes {
-                diffuse: DVec3::ZERO,
-                sharp_alpha: ALPHA_MIN,
-                sharp: DVec3::ZERO,
-                broad_alpha: ALPHA_MAX,
-                broad: DVec3::ZERO,
-                sharp_grazing: DVec3::ZERO,
-                broad_grazing: DVec3::ZERO,
-                coated: DVec3::ZERO,
-            },
+            model: model_of(&[[0.0; 6]; 3], ALPHA_MIN, ALPHA_MAX),
             rms_log_error: 0.0,
         },
+    }
+}
+
+/// The model of coefficients `x[c]` = [kd, ks_sharp, kg_sharp, ks_broad, kg_broad, kc] per channel.
+fn model_of(x: &[[f64; 6]; 3], sharp_alpha: f64, broad_alpha: f64) -> TwoLobes {
+    let col = |p: usize| DVec3::new(x[0][p], x[1][p], x[2][p]);
+    TwoLobes {
+        diffuse: col(0),
+        sharp_alpha,
+        sharp: col(1),
+        broad_alpha,
+        broad: col(3),
+        sharp_grazing: col(2),
+        broad_grazing: col(4),
+        coated: col(5),
+    }
+}
+
+/// The samples that carry weight (guards as in `fit::fit_samples`), with their log targets.
+struct Kept {
+    pairs: Vec<(DVec3, DVec3)>,
+    cos_o: Vec<f64>,
+    w: Vec<f64>,
+    /// log(1 + f cos theta_o) per channel.
+    target: [Vec<f64>; 3],
+}
+
+impl Kept {
+    fn of(pairs: &[(DVec3, DVec3)], values: &[DVec3], weights: &[f64]) -> Self {
+        let mut kept = Kept {
+            pairs: Vec::new(),
+            cos_o: Vec::new(),
+            w: Vec::new(),
+            target: [Vec::new(), Vec::new(), Vec::new()],
+        };
+        for (i, &(wi, wo)) in pairs.iter().enumerate() {
+            let wt = if weights[i].is_finite() {
+                weights[i].max(0.0)
+            } else {
+                0.0
+            };
+            let v = values[i];
+            if !(wo.z > 0.0 && wi.z > 0.0) || wt == 0.0 || !v.is_finite() {
+                continue;
+            }
+            kept.cos_o.push(wo.z);
+            kept.w.push(wt);
+            kept.pairs.push((wi, wo));
+            for c in 0..3 {
+                kept.target[c].push((v[c].max(0.0) * wo.z).ln_1p());
+            }
+        }
+        kept
+    }
+
+    /// The Lambert cap per channel (albedo units: kd / pi <= min f); infinite when free or when no
+    /// kept sample is above the grazing band. Guard: values were clamped at 0, so a finite cap is >= 0.
+    fn diffuse_caps(&self, bound: DiffuseBound) -> [f64; 3] {
+        std::array::from_fn(|c| match bound {
+            DiffuseBound::Free => f64::INFINITY,
+            DiffuseBound::BelowDarkest => self.target[c]
+                .iter()
+                .zip(&self.pairs)
+                .filter(|(_, (wi, wo))| wi.z.min(wo.z) >= CAP_MIN_COS)
+                .map(|(t, (_, wo))| t.exp_m1() / wo.z * std::f64::consts::PI)
+                .fold(f64::INFINITY, f64::min),
+        })
+    }
+}
+
+/// The model's columns (each term's value times cos theta_o) at every kept sample.
+struct Columns {
+    /// The candidate roughnesses, log spaced over [ALPHA_MIN, ALPHA_MAX].
+    alphas: Vec<f64>,
+    /// Each roughness's GGX factor.
+    basis: Vec<Vec<f64>>,
+    /// Each roughness's Fresnel-rising column (empty when the rise is off).
+    rising: Vec<Vec<f64>>,
+    diffuse: Vec<f64>,
+    coated: Vec<f64>,
+}
+
+impl Columns {
+    fn of(kept: &Kept, fresnel: LobeFresnel) -> Self {
+        let alphas: Vec<f64> = (0..=ALPHA_STEPS)
+            .map(|i| (ALPHA_MIN.ln() + (ALPHA_MAX / ALPHA_MIN).ln() * i as f64 / ALPHA_STEPS as f64).exp())
+            .collect();
+        let basis: Vec<Vec<f64>> = alphas
+            .iter()
+            .map(|&a| {
+                kept.pairs
+                    .iter()
+                    .zip(&kept.cos_o)
+                    .map(|(&(wi, wo), c)| ggx_specular(wi, wo, a) * c)
+                    .collect()
+            })
+            .collect();
+        let diffuse: Vec<f64> = kept.cos_o.iter().map(|c| c * FRAC_1_PI).collect();
+        let coated: Vec<f64> = kept
+            .pairs
+            .iter()
+            .zip(&kept.cos_o)
+            .map(|(&(wi, wo), c)| c * FRAC_1_PI * coated_diffuse_shape(wi, wo))
+            .collect();
+        // Each lobe enters as two columns, S and S (1 + (1/F0_MIN - 1) x) (x the Schlick weight):
+        // non-negative (c0, c1) span exactly the lobes with ks <= kg <= ks / F0_MIN.
+        let rise = 1.0 / F0_MIN - 1.0;
+        let fresnel_cols: Vec<f64> = kept
+            .pairs
+            .iter()
+            .map(|&(wi, wo)| 1.0 + rise * schlick_weight(wi, wo))
+            .collect();
+        let rising: Vec<Vec<f64>> = match fresnel {
+            LobeFresnel::Bounded => basis
+                .iter()
+                .map(|b| b.iter().zip(&fresnel_cols).map(|(v, f)| v * f).collect())
+                .collect(),
+            LobeFresnel::None => Vec::new(),
+        };
+        Self {
+            alphas,
+            basis,
+            rising,
+            diffuse,
+            coated,
+        }
+    }
+
+    /// Per channel the best coefficients [kd, ks_sharp, kg_sharp, ks_broad, kg_broad, kc] for the
+    /// roughness pair (s, b), and the summed loss.
+    fn fit_pair(&self, kept: &Kept, cap: &[f64; 3], s: usize, b: usize, fresnel: LobeFresnel) -> ([[f64; 6]; 3], f64) {
+        let to_colours = |c0: f64, c1: f64| -> (f64, f64) { (c0 + c1, c0 + c1 / F0_MIN) };
+        let mut coeffs = [[0.0; 6]; 3];
+        let mut loss = 0.0;
+        for c in 0..3 {
+            let (x, l) = match fresnel {
+                LobeFresnel::Bounded => {
+                    let cols = [
+                        &self.diffuse[..],
+                        &self.basis[s][..],
+                        &self.rising[s][..],
+                        &self.basis[b][..],
+                        &self.rising[b][..],
+                        &self.coated[..],
+                    ];
+                    let (x, l) = solve_capped(&cols, &kept.target[c], &kept.w, cap[c]);
+                    let (ks, kg) = to_colours(x[1], x[2]);
+                    let (bs, bg) = to_colours(x[3], x[4]);
+                    ([x[0], ks, kg, bs, bg, x[5]], l)
+                }
+                LobeFresnel::None => {
+                    let cols = [
+                        &self.diffuse[..],
+                        &self.basis[s][..],
+                        &self.basis[b][..],
+                        &self.coated[..],
+                    ];
+                    let (x, l) = solve_capped(&cols, &kept.target[c], &kept.w, cap[c]);
+                    ([x[0], x[1], x[1], x[2], x[2], x[3]], l)
+                }
+            };
+            coeffs[c] = x;
+            loss += l;
+        }
+        (coeffs, loss)
     }
 }
 
@@ -341,13 +350,9 @@ pub fn fit_two_lobes_bounded(
 /// measure a lobe's height, not its width: `resolvable_alpha` looks past them.
 const AT_PEAK_TAN: f64 = 1e-3;
 
-/// The roughness a sample set resolves: per incident direction, tan theta_h of the sample nearest
-/// its mirror direction (samples within `AT_PEAK_TAN` of it aside), and the median of that over
-/// the incident directions. A GGX lobe of roughness alpha has fallen to a quarter of its peak at
-/// tan theta_h = alpha, so at alpha = half this value the nearest off-peak sample still sees 4% of
-/// the peak, and a sharper lobe is seen by nothing but its peak sample. 0 when no incident
-/// direction has an off-peak sample (nothing limits the fit then). Pairs below the horizon or not
-/// finite are ignored.
+/// The roughness a sample set resolves: the median over incident directions of tan theta_h of the
+/// sample nearest the mirror direction (past `AT_PEAK_TAN`); 0 when none has an off-peak sample.
+/// Pairs below the horizon or not finite are ignored.
 pub fn resolvable_alpha(pairs: &[(DVec3, DVec3)]) -> f64 {
     let mut nearest: Vec<(DVec3, f64)> = Vec::new();
     for &(wi, wo) in pairs {
@@ -372,159 +377,6 @@ pub fn resolvable_alpha(pairs: &[(DVec3, DVec3)]) -> f64 {
     }
     t.sort_by(f64::total_cmp);
     t[t.len() / 2]
-}
-
-/// Weighted sum of squared log residuals of coefficients `x` on columns `cols` (already times cos),
-/// plus `offset` (empty: none).
-fn loss<const N: usize>(cols: &[&[f64]; N], t: &[f64], w: &[f64], offset: &[f64], x: &[f64; N]) -> f64 {
-    (0..t.len())
-        .map(|i| {
-            let f: f64 = offset.get(i).copied().unwrap_or(0.0) + (0..N).map(|p| x[p] * cols[p][i]).sum::<f64>();
-            w[i] * (f.ln_1p() - t[i]).powi(2)
-        })
-        .sum()
-}
-
-/// `solve_channel` with the first coefficient (the Lambert term) at most `cap`: when the free
-/// optimum exceeds it, the coefficient is held at the cap and the others are solved again around it
-/// (the loss is smooth, so a bound-violating free optimum puts the bounded one on the bound).
-fn solve_capped<const N: usize>(cols: &[&[f64]; N], t: &[f64], w: &[f64], cap: f64) -> ([f64; N], f64) {
-    let free = solve_channel(cols, t, w, &[]);
-    if !(free.0[0] > cap) {
-        return free;
-    }
-    let offset: Vec<f64> = cols[0].iter().map(|c| cap * c).collect();
-    // The Lambert column's coefficient is pinned by zeroing its column: it lives in the offset.
-    let zero = vec![0.0; t.len()];
-    let mut pinned: [&[f64]; N] = *cols;
-    pinned[0] = &zero;
-    let (mut x, l) = solve_channel(&pinned, t, w, &offset);
-    x[0] = cap;
-    (x, l)
-}
-
-/// Best non-negative coefficients for one channel and their loss, for f cos = offset + sum x_p
-/// cols_p (`offset` empty: none): a linear least-squares start on exp(t) - 1 - offset, then
-/// projected Gauss-Newton on the log loss with step halving.
-fn solve_channel<const N: usize>(cols: &[&[f64]; N], t: &[f64], w: &[f64], offset: &[f64]) -> ([f64; N], f64) {
-    let n = t.len();
-    let off = |i: usize| offset.get(i).copied().unwrap_or(0.0);
-    let normal = |jac: &dyn Fn(usize) -> ([f64; N], f64, f64)| {
-        let mut a = [[0.0; N]; N];
-        let mut r = [0.0; N];
-        for i in 0..n {
-            let (j, y, wi) = jac(i);
-            for p in 0..N {
-                r[p] += wi * j[p] * y;
-                for q in 0..N {
-                    a[p][q] += wi * j[p] * j[q];
-                }
-            }
-        }
-        (a, r)
-    };
-    let (a, r) = normal(&|i| (std::array::from_fn(|p| cols[p][i]), t[i].exp_m1() - off(i), w[i]));
-    let mut x = nnls(&a, &r);
-    let mut best = loss(cols, t, w, offset, &x);
-    for _ in 0..GN_ITERATIONS {
-        // Linearised at x: minimise sum w (r_i + J_i (y - x))^2 over y >= 0, i.e. the NNLS with
-        // right-hand side J_i . x - r_i.
-        let (a, rhs) = normal(&|i| {
-            let f: f64 = off(i) + (0..N).map(|p| x[p] * cols[p][i]).sum::<f64>();
-            let d = 1.0 + f;
-            let j: [f64; N] = std::array::from_fn(|p| cols[p][i] / d);
-            let res = d.ln() - t[i];
-            let jx: f64 = (0..N).map(|p| j[p] * x[p]).sum();
-            (j, jx - res, w[i])
-        });
-        let y = nnls(&a, &rhs);
-        let mut step = 1.0;
-        let mut improved = false;
-        while step > 1e-4 {
-            let cand: [f64; N] = std::array::from_fn(|p| (x[p] + step * (y[p] - x[p])).max(0.0));
-            let l = loss(cols, t, w, offset, &cand);
-            if l < best {
-                (x, best, improved) = (cand, l, true);
-                break;
-            }
-            step *= 0.5;
-        }
-        if !improved {
-            break;
-        }
-    }
-    (x, best)
-}
-
-/// Exact non-negative least squares in N (a handful of) unknowns from the normal equations
-/// A x = r: every active set (which unknowns are free) is solved on its free block, and the best
-/// feasible one is kept. Guard: a singular block (a column that vanishes on the samples) is
-/// skipped; the empty set (x = 0) is always feasible.
-fn nnls<const N: usize>(a: &[[f64; N]; N], r: &[f64; N]) -> [f64; N] {
-    // Objective up to a constant: x^T A x - 2 r^T x.
-    let objective = |x: &[f64; N]| -> f64 {
-        let mut s = 0.0;
-        for p in 0..N {
-            s -= 2.0 * r[p] * x[p];
-            for q in 0..N {
-                s += x[p] * a[p][q] * x[q];
-            }
-        }
-        s
-    };
-    let mut best = ([0.0; N], 0.0);
-    for mask in 1usize..(1 << N) {
-        let free: Vec<usize> = (0..N).filter(|&p| mask & (1 << p) != 0).collect();
-        let Some(sol) = solve_block(a, r, &free) else {
-            continue;
-        };
-        if sol.iter().any(|&v| !(v >= 0.0)) {
-            continue;
-        }
-        let mut x = [0.0; N];
-        for (k, &p) in free.iter().enumerate() {
-            x[p] = sol[k];
-        }
-        let o = objective(&x);
-        if o < best.1 {
-            best = (x, o);
-        }
-    }
-    best.0
-}
-
-/// Solve A[free, free] y = r[free] by Gaussian elimination with partial pivoting; None if singular.
-fn solve_block<const N: usize>(a: &[[f64; N]; N], r: &[f64; N], free: &[usize]) -> Option<Vec<f64>> {
-    let k = free.len();
-    let mut m: Vec<Vec<f64>> = free
-        .iter()
-        .map(|&p| {
-            let mut row: Vec<f64> = free.iter().map(|&q| a[p][q]).collect();
-            row.push(r[p]);
-            row
-        })
-        .collect();
-    let scale = free.iter().map(|&p| a[p][p].abs()).fold(0.0, f64::max);
-    for col in 0..k {
-        let piv = (col..k).max_by(|&i, &j| m[i][col].abs().total_cmp(&m[j][col].abs()))?;
-        if !(m[piv][col].abs() > 1e-12 * scale) {
-            return None;
-        }
-        m.swap(col, piv);
-        let pivot_row = m[col].clone();
-        for row in m.iter_mut().skip(col + 1) {
-            let f = row[col] / pivot_row[col];
-            for (x, p) in row.iter_mut().zip(&pivot_row).skip(col) {
-                *x -= f * p;
-            }
-        }
-    }
-    let mut y = vec![0.0; k];
-    for row in (0..k).rev() {
-        let s: f64 = (row + 1..k).map(|c| m[row][c] * y[c]).sum();
-        y[row] = (m[row][k] - s) / m[row][row];
-    }
-    Some(y)
 }
 
 #[cfg(test)]
@@ -724,17 +576,6 @@ mod tests {
         // Grazing and normal incidence stay finite.
         let r = resolvable_alpha(&[at(0.0, 0.1), at(89.0, -0.01)]);
         assert!(r.is_finite() && r > 0.0, "{r}");
-    }
-
-    #[test]
-    fn nnls_matches_the_unconstrained_solution_and_clamps() {
-        // A = I: the solution is r with negatives set to 0.
-        let a = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-        assert_eq!(nnls(&a, &[1.0, -2.0, 3.0]), [1.0, 0.0, 3.0]);
-        // Singular A (two equal columns): still a feasible minimiser.
-        let a = [[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 2.0]];
-        let x = nnls(&a, &[2.0, 2.0, 2.0]);
-        assert!((x[0] + x[1] - 2.0).abs() < 1e-12 && (x[2] - 1.0).abs() < 1e-12, "{x:?}");
     }
 
     /// A material of the family never contradicts the Lambert bound (its Lambert term is under every

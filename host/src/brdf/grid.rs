@@ -1,38 +1,17 @@
-//! The adaptive measurement grid a scan produces, and its reconstruction as a material.
+//! The measurement grid a scan produces: per incoming slice, N x M nodes in the u-space of the
+//! slice's warp, read back as a material by mapping wo to u and interpolating (docs/planner.md,
+//! "The measurement grid").
 //!
-//! * Incoming directions: 1 phi x K theta (isotropy: phi_i = 0), equal steps in cos theta from the
-//!   normal to THETA_I_MAX: cos theta_k = 1 - k / (K - 1) (1 - cos THETA_I_MAX), k = 0..K-1 (K = 1:
-//!   theta = 0). Equal steps in cos theta put more slices toward grazing, where lobes change fastest.
-//!   The last slice stops at 89 deg, not 90: at 90 deg every BRDF here is 0 and a slice there would
-//!   pull the whole band above the last real slice toward black (the RGL notes measured this).
-//! * Outgoing directions: an N x M grid of u through the slice's warp: u = (i / (N - 1), j / M),
-//!   i = 0..N-1, j = 0..M-1. u.x spans [0, 1] with both ends (1 is sampled as 1 - eps); u.y is the
-//!   warp's azimuth, periodic, so j = M would repeat j = 0.
-//! * `eval(wi, wo)`: rotate both by -phi_i, find the two slices bracketing theta_i (clamped beyond the
-//!   ends), map wo to u through each slice's inverse warp, interpolate bilinearly in u (periodic in
-//!   u.y), then linearly in theta_i. Nodes whose direction fell below the horizon hold no measurement:
-//!   they are dropped from the interpolation and the weights of the others renormalised, as is a slice
-//!   that cannot map wo back.
-//! * A warp in the mirror limit (alpha < MIRROR_ALPHA) has no inverse and is refused.
-//! * `NodeLayout::Nested` (the planner's progressive levels): u = (i / N, j / M), i = 0..N-1: the
-//!   pole u.x = 0 is a node, u.x = 1 is not (it lands on the horizon or the warp's rim), and the
-//!   nodes of N x M are nodes of 2N x 2M, so a scan can stop after any level. Beyond the last ring
-//!   u.x > (N - 1) / N the value is held constant. `MeasurementGrid::from_slices` takes any slice
-//!   warps (the mixture warp needs the estimate, so it is not a `WarpKind`).
-//! * `NodeLayout::NestedFarRing` (the mixture plans' levels): as `Nested`, except that a two-ring
-//!   grid (N = 2) has its second ring at u.x = 3/4 instead of 1/2. A node of every finer nested
-//!   level, so the levels still nest and every later level's nodes are unchanged; it matters because
-//!   for a sharp estimate's mixture warp u.x = 1/2 is the peak's shoulder, and a first level
-//!   measuring only peak and shoulder leaves the far field (most of the hemisphere) to the fit's
-//!   guess (docs/tradeoff/README.md).
+//! * `eval(wi, wo)`: rotate both by -phi_i, find the two slices bracketing theta_i (clamped beyond
+//!   the ends), map wo to u through each slice's inverse warp, interpolate bilinearly in u
+//!   (periodic in u.y), then linearly in theta_i. Nodes without a measurement are left out and the
+//!   other weights renormalised, as is a slice that cannot map wo back.
+//! * A warp in the mirror limit has no inverse and is refused.
 
 use super::frame::{from_spherical, phi_of, rotate_z, theta_of};
-use super::roughness::MIRROR_ALPHA;
-use super::warp::{SliceWarp, Warp, WarpKind};
+use super::warp::{SliceWarp, Warp};
 use super::{BrdfError, Material};
 use glam::{DVec2, DVec3};
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 
 const MIRROR_MSG: &str = "a slice warp is in the mirror limit and has no inverse";
 
@@ -41,22 +20,9 @@ pub const DEFAULT_K: usize = 8;
 /// Largest incoming elevation measured (89 deg).
 pub const THETA_I_MAX: f64 = 89.0 * std::f64::consts::PI / 180.0;
 
-/// The K incoming elevations (radians), equal steps in cos theta (see the module doc).
-pub fn incident_thetas(k: usize) -> Vec<f64> {
-    if k <= 1 {
-        return vec![0.0];
-    }
-    let span = 1.0 - THETA_I_MAX.cos();
-    (0..k)
-        .map(|i| (1.0 - i as f64 / (k - 1) as f64 * span).clamp(-1.0, 1.0).acos())
-        .collect()
-}
-
-/// Where the nodes sit in u (see the module doc).
+/// Where the nodes sit in u: u = (u.x of ring i, j / M).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum NodeLayout {
-    /// u.x = i / (N - 1): both ends.
-    Endpoints,
     /// u.x = i / N: nested under doubling, pole included, rim excluded.
     Nested,
     /// As `Nested`, but N = 2 has u.x = 0 and 3/4.
@@ -70,7 +36,6 @@ impl NodeLayout {
     /// The name files record (grid.json's `layout`).
     pub fn name(self) -> &'static str {
         match self {
-            NodeLayout::Endpoints => "endpoints",
             NodeLayout::Nested => "nested",
             NodeLayout::NestedFarRing => "nested-far-ring",
         }
@@ -79,7 +44,6 @@ impl NodeLayout {
     /// u.x of ring i of an N-ring grid.
     pub fn node_x(self, i: usize, n: usize) -> f64 {
         match self {
-            NodeLayout::Endpoints => i as f64 / (n - 1).max(1) as f64,
             NodeLayout::NestedFarRing if n == 2 && i == 1 => FAR_RING_X,
             NodeLayout::Nested | NodeLayout::NestedFarRing => i as f64 / n as f64,
         }
@@ -95,12 +59,10 @@ impl NodeLayout {
         }
     }
 
-    /// Continuous ring coordinate of u.x in an N-ring grid, in [0, N - 1] (held beyond the last
-    /// ring in the nested layouts).
+    /// Continuous ring coordinate of u.x in an N-ring grid, in [0, N - 1] (held beyond the last ring).
     fn ring_coordinate(self, ux: f64, n: usize) -> f64 {
         let ux = ux.clamp(0.0, 1.0);
         match self {
-            NodeLayout::Endpoints => ux * (n - 1) as f64,
             NodeLayout::NestedFarRing if n == 2 => (ux / FAR_RING_X).min(1.0),
             NodeLayout::Nested | NodeLayout::NestedFarRing => (ux * n as f64).min((n - 1) as f64),
         }
@@ -109,7 +71,6 @@ impl NodeLayout {
 
 #[derive(Clone, Debug)]
 pub struct MeasurementGrid {
-    warp: Option<WarpKind>,
     layout: NodeLayout,
     theta_i: Vec<f64>,
     n: usize,
@@ -121,51 +82,7 @@ pub struct MeasurementGrid {
 }
 
 impl MeasurementGrid {
-    /// A grid from measured data; `values` and `valid` are indexed (k M + j) N + i.
-    pub fn new(
-        warp: WarpKind,
-        theta_i: Vec<f64>,
-        n: usize,
-        m: usize,
-        values: Vec<DVec3>,
-        valid: Vec<bool>,
-    ) -> Result<Self, BrdfError> {
-        let bad = BrdfError::Grid;
-        if n < 2 || m < 1 || theta_i.is_empty() {
-            return Err(bad(format!(
-                "grid needs N >= 2, M >= 1 and at least one theta_i, got N {n}, M {m}, K {}",
-                theta_i.len()
-            )));
-        }
-        if !theta_i.windows(2).all(|w| w[0] < w[1])
-            || !theta_i.iter().all(|t| (0.0..=std::f64::consts::FRAC_PI_2).contains(t))
-        {
-            return Err(bad("theta_i must increase strictly within [0, pi/2]".into()));
-        }
-        let cells = theta_i.len() * n * m;
-        if values.len() != cells || valid.len() != cells {
-            return Err(bad(format!(
-                "expected {cells} values and flags, got {} and {}",
-                values.len(),
-                valid.len()
-            )));
-        }
-        let slices: Vec<SliceWarp> = theta_i
-            .iter()
-            .map(|&t| warp.for_incident(from_spherical(t, 0.0)))
-            .collect();
-        let mut grid =
-            Self::from_slices(slices, NodeLayout::Endpoints, theta_i, n, m, values, valid).map_err(|e| match e {
-                BrdfError::Grid(msg) if msg == MIRROR_MSG => bad(format!(
-                    "warp {warp} is in the mirror limit (alpha < {MIRROR_ALPHA}) and has no inverse"
-                )),
-                other => other,
-            })?;
-        grid.warp = Some(warp);
-        Ok(grid)
-    }
-
-    /// A grid over explicit slice warps (one per theta_i) with the given node layout.
+    /// A grid over slice warps (one per theta_i); `values` and `valid` are indexed (k M + j) N + i.
     pub fn from_slices(
         slices: Vec<SliceWarp>,
         layout: NodeLayout,
@@ -202,7 +119,6 @@ impl MeasurementGrid {
             return Err(bad(MIRROR_MSG.into()));
         }
         Ok(Self {
-            warp: None,
             layout,
             theta_i,
             n,
@@ -213,38 +129,10 @@ impl MeasurementGrid {
         })
     }
 
-    /// Measure a known material on the grid (what the virtual gonio does, without its effects).
-    pub fn measure(
-        material: &dyn Material,
-        warp: WarpKind,
-        theta_i: Vec<f64>,
-        n: usize,
-        m: usize,
-    ) -> Result<Self, BrdfError> {
-        let cells = theta_i.len() * n * m;
-        let mut grid = Self::new(warp, theta_i, n, m, vec![DVec3::ZERO; cells], vec![false; cells])?;
-        for k in 0..grid.theta_i.len() {
-            for j in 0..m {
-                for i in 0..n {
-                    if let Some((wi, wo)) = grid.node_directions(k, i, j) {
-                        let idx = grid.index(k, i, j);
-                        grid.values[idx] = material.eval(wi, wo);
-                        grid.valid[idx] = true;
-                    }
-                }
-            }
-        }
-        Ok(grid)
-    }
-
     fn index(&self, k: usize, i: usize, j: usize) -> usize {
         (k * self.m + j) * self.n + i
     }
 
-    /// The warp kind, if the grid was built from one (not for tabulated warps).
-    pub fn warp(&self) -> Option<WarpKind> {
-        self.warp
-    }
     pub fn theta_i(&self) -> &[f64] {
         &self.theta_i
     }
@@ -346,15 +234,8 @@ impl MeasurementGrid {
     }
 }
 
-/// The weight of the next azimuth node at fraction `f` of the way to it, in an M-node ring.
-/// Linear, except at M = 2: the two nodes are then half a turn apart, and a straight line from one
-/// to the other and back is a triangle wave in azimuth, kinked at both nodes and already halfway at
-/// a quarter turn. The lowest-order periodic function through two antipodal samples is
-/// a + b cos(2 pi u.y), whose weights are (1 -+ cos(pi f)) / 2. A first level's side queries then
-/// lean less on the far node, which at 2 x 2 of a sharp estimate is the forward-grazing one, with
-/// ratios to the fitted prior up to 10 (docs/tradeoff/README.md). Chosen on the training set:
-/// point-light FLIP at 2 x 2 0.0247 -> 0.0231 (the uniform grid 0.0179 -> 0.0168); the same ease
-/// at M >= 4 changed nothing at 8 x 8 and 16 x 16, so there it stays linear.
+/// The weight of the next azimuth node at fraction `f` of the way to it, in an M-node ring: linear,
+/// except at M = 2, where it is a + b cos(2 pi u.y) through the two antipodal nodes (docs/planner.md).
 fn azimuth_weight(f: f64, m: usize) -> f64 {
     if m == 2 {
         0.5 * (1.0 - (std::f64::consts::PI * f).cos())
@@ -426,78 +307,43 @@ impl MeasurementGrid {
     }
 }
 
-/// One row of the convergence report.
-#[derive(Clone, Copy, Debug)]
-pub struct ConvergenceRow {
-    pub n: usize,
-    /// Relative RMS error with wi on the measured slices (u interpolation only).
-    pub on_slices: f64,
-    /// Relative RMS error with theta_i uniform in [0, THETA_I_MAX] (adds the theta_i interpolation).
-    pub off_slices: f64,
-}
-
-/// Measure `material` on N x N grids (K slices) and report the reconstruction error for each N.
-/// Test pairs: phi_i uniform, wo drawn through the slice warp from uniform u (so the error is
-/// measured where the warp puts the samples, i.e. where the material reflects), `pairs` of each kind,
-/// fixed `seed`. Error: sqrt(sum |g_rec - g|^2 / sum |g|^2) over the pairs, with g = f cos theta_o,
-/// the reflected radiance per unit irradiance that a rendering (and the detector) sees. f itself is
-/// not a fair target: Ward's eq. 1 grows like 1/sqrt(cos theta_o) toward the horizon, which no
-/// interpolant of finitely many samples follows.
-pub fn convergence(
-    material: &dyn Material,
-    warp: WarpKind,
-    k: usize,
-    ns: &[usize],
-    pairs: usize,
-    seed: u64,
-) -> Result<Vec<ConvergenceRow>, BrdfError> {
-    let thetas = incident_thetas(k);
-    let mut rows = Vec::new();
-    for &n in ns {
-        let grid = MeasurementGrid::measure(material, warp, thetas.clone(), n, n)?;
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let mut err = [0.0; 2];
-        let mut norm = [0.0; 2];
-        for kind in 0..2 {
-            let mut done = 0;
-            while done < pairs {
-                let theta = if kind == 0 {
-                    thetas[rng.random_range(0..thetas.len())]
-                } else {
-                    rng.random::<f64>() * THETA_I_MAX
-                };
-                let phi = rng.random::<f64>() * std::f64::consts::TAU;
-                let u = DVec2::new(rng.random(), rng.random());
-                let Some(wo) = warp.for_incident(from_spherical(theta, 0.0)).sample(u) else {
-                    continue;
-                };
-                let (wi, wo) = (from_spherical(theta, phi), rotate_z(wo, phi));
-                let truth = material.eval(wi, wo) * wo.z;
-                err[kind] += (grid.eval(wi, wo) * wo.z - truth).length_squared();
-                norm[kind] += truth.length_squared();
-                done += 1;
-            }
-        }
-        let rel = |i: usize| {
-            if norm[i] > 0.0 {
-                (err[i] / norm[i]).sqrt()
-            } else {
-                err[i].sqrt()
-            }
-        };
-        rows.push(ConvergenceRow {
-            n,
-            on_slices: rel(0),
-            off_slices: rel(1),
-        });
-    }
-    Ok(rows)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::brdf::analytic::{Ggx, Ward};
+    use crate::brdf::analytic::Ggx;
+    use crate::brdf::warp::WarpKind;
+
+    /// A nested grid of `warp`'s slices at `thetas`, every node holding `material`'s value.
+    fn measured(material: &dyn Material, warp: WarpKind, thetas: Vec<f64>, n: usize, m: usize) -> MeasurementGrid {
+        let mut grid = empty(warp, thetas, n, m).expect("grid");
+        for k in 0..grid.theta_i.len() {
+            for j in 0..m {
+                for i in 0..n {
+                    let v = grid.node_directions(k, i, j).map(|(wi, wo)| material.eval(wi, wo));
+                    grid.set_node(k, i, j, v);
+                }
+            }
+        }
+        grid
+    }
+
+    /// A nested grid of `warp`'s slices at `thetas` without measurements.
+    fn empty(warp: WarpKind, thetas: Vec<f64>, n: usize, m: usize) -> Result<MeasurementGrid, BrdfError> {
+        let slices = thetas
+            .iter()
+            .map(|&t| warp.for_incident(from_spherical(t, 0.0)))
+            .collect();
+        let cells = thetas.len() * n * m;
+        MeasurementGrid::from_slices(
+            slices,
+            NodeLayout::Nested,
+            thetas,
+            n,
+            m,
+            vec![DVec3::ZERO; cells],
+            vec![false; cells],
+        )
+    }
 
     /// The far-ring layout moves only the second ring of a two-ring grid, to a node of every finer
     /// nested level, and interpolates between the pole and it (held beyond).
@@ -530,8 +376,7 @@ mod tests {
     #[test]
     fn two_azimuth_nodes_interpolate_as_a_cosine() {
         let (r0, r1) = (DVec3::new(1.0, 2.0, -3.0), DVec3::new(5.0, -1.0, 0.5));
-        let mut grid = MeasurementGrid::new(WarpKind::Cosine, vec![0.0], 2, 2, vec![DVec3::ZERO; 4], vec![false; 4])
-            .expect("grid");
+        let mut grid = empty(WarpKind::Cosine, vec![0.0], 2, 2).expect("grid");
         for i in 0..2 {
             grid.set_node(0, i, 0, Some(r0));
             grid.set_node(0, i, 1, Some(r1));
@@ -543,8 +388,7 @@ mod tests {
             let got = grid.bilinear(0, DVec2::new(0.0, uy)).expect("valid nodes");
             assert!((got - want).abs().max_element() < 1e-12, "u.y {uy}: {got} vs {want}");
         }
-        let mut grid = MeasurementGrid::new(WarpKind::Cosine, vec![0.0], 2, 4, vec![DVec3::ZERO; 8], vec![false; 8])
-            .expect("grid");
+        let mut grid = empty(WarpKind::Cosine, vec![0.0], 2, 4).expect("grid");
         for i in 0..2 {
             for j in 0..4 {
                 grid.set_node(0, i, j, Some(if j == 0 { r0 } else { r1 }));
@@ -557,16 +401,6 @@ mod tests {
             (quarter - (0.75 * r0 + 0.25 * r1)).abs().max_element() < 1e-12,
             "{quarter}"
         );
-    }
-
-    #[test]
-    fn thetas_are_equal_steps_in_cosine() {
-        let t = incident_thetas(8);
-        assert_eq!(t.len(), 8);
-        assert_eq!(t[0], 0.0);
-        assert!((t[7] - THETA_I_MAX).abs() < 1e-12);
-        let steps: Vec<f64> = t.windows(2).map(|w| w[0].cos() - w[1].cos()).collect();
-        assert!(steps.iter().all(|s| (s - steps[0]).abs() < 1e-12), "{steps:?}");
     }
 
     /// At every measured node (any phi_i), the reconstruction returns the measured value.
@@ -582,7 +416,8 @@ mod tests {
             WarpKind::Ward { alpha: 0.2 },
             WarpKind::Cosine,
         ] {
-            let grid = MeasurementGrid::measure(&material, warp, incident_thetas(8), 9, 12).expect("grid");
+            let thetas = (0..8).map(|k| k as f64 / 7.0 * THETA_I_MAX).collect();
+            let grid = measured(&material, warp, thetas, 9, 12);
             let mut checked = 0;
             for k in 0..8 {
                 for j in 0..12 {
@@ -605,76 +440,42 @@ mod tests {
         }
     }
 
-    /// The reconstruction converges as N grows. Prints the table; asserts that the on-slice error
-    /// falls at every doubling and by at least 50x from N = 2 to N = 32.
-    #[test]
-    fn converges_with_n() {
-        let cases: [(&str, Box<dyn Material>, WarpKind); 2] = [
-            (
-                "ward rho_d=0.2 alpha=0.15 / ward warp",
-                Box::new(Ward {
-                    rho_d: DVec3::splat(0.2),
-                    rho_s: DVec3::splat(0.8),
-                    alpha: 0.15,
-                }),
-                WarpKind::Ward { alpha: 0.15 },
-            ),
-            (
-                "ggx alpha=0.2 diffuse=0.1 / ggx-vndf warp",
-                Box::new(Ggx {
-                    alpha: 0.2,
-                    diffuse: DVec3::splat(0.1),
-                    specular: DVec3::ONE,
-                }),
-                WarpKind::GgxVndf { alpha: 0.2 },
-            ),
-        ];
-        for (name, material, warp) in &cases {
-            let rows = convergence(material.as_ref(), *warp, DEFAULT_K, &[2, 4, 8, 16, 32], 4000, 3).expect("grid");
-            println!("{name}, K = {DEFAULT_K}: relative RMS error");
-            println!("   N   on slices  off slices");
-            for r in &rows {
-                println!("{:>4} {:>11.5} {:>11.5}", r.n, r.on_slices, r.off_slices);
-            }
-            assert!(
-                rows.windows(2).all(|w| w[1].on_slices < w[0].on_slices),
-                "{name}: not decreasing"
-            );
-            assert!(rows[4].on_slices < rows[0].on_slices / 50.0, "{name}: {rows:?}");
-            assert!(rows
-                .iter()
-                .all(|r| r.off_slices.is_finite() && r.off_slices >= r.on_slices * 0.5));
-        }
-    }
-
     #[test]
     fn refuses_inconsistent_grids() {
         let w = WarpKind::Cosine;
-        assert!(MeasurementGrid::new(w, vec![0.0], 1, 4, vec![], vec![]).is_err());
-        assert!(MeasurementGrid::new(w, vec![0.5, 0.2], 2, 2, vec![DVec3::ZERO; 8], vec![true; 8]).is_err());
-        assert!(MeasurementGrid::new(w, vec![0.0], 2, 2, vec![DVec3::ZERO; 3], vec![true; 4]).is_err());
-        let msg = MeasurementGrid::new(w, vec![0.0], 2, 2, vec![DVec3::ZERO; 3], vec![true; 4])
-            .err()
-            .map(|e| e.to_string());
-        assert_eq!(
-            msg.as_deref(),
-            Some("measurement grid: expected 4 values and flags, got 3 and 4")
-        );
-        let ok = MeasurementGrid::new(w, vec![0.0], 2, 2, vec![DVec3::ONE; 4], vec![true; 4]).expect("consistent");
-        assert_eq!(ok.node_value(0, 2, 0), None);
-        assert_eq!(ok.node_directions(0, 0, 5), None);
-        assert_eq!(ok.node_value(0, 1, 1), Some(DVec3::ONE));
-        let mirror = MeasurementGrid::new(
-            WarpKind::Ward { alpha: 0.0 },
+        assert!(empty(w, vec![0.0], 1, 4).is_err());
+        assert!(empty(w, vec![0.5, 0.2], 2, 2).is_err());
+        let slices = vec![w.for_incident(DVec3::Z)];
+        let bad = MeasurementGrid::from_slices(
+            slices.clone(),
+            NodeLayout::Nested,
             vec![0.0],
             2,
             2,
-            vec![DVec3::ZERO; 4],
+            vec![DVec3::ZERO; 3],
             vec![true; 4],
         );
         assert_eq!(
+            bad.err().map(|e| e.to_string()).as_deref(),
+            Some("measurement grid: expected 4 values and flags, got 3 and 4")
+        );
+        let ok = MeasurementGrid::from_slices(
+            slices,
+            NodeLayout::Nested,
+            vec![0.0],
+            2,
+            2,
+            vec![DVec3::ONE; 4],
+            vec![true; 4],
+        )
+        .expect("consistent");
+        assert_eq!(ok.node_value(0, 2, 0), None);
+        assert_eq!(ok.node_directions(0, 0, 5), None);
+        assert_eq!(ok.node_value(0, 1, 1), Some(DVec3::ONE));
+        let mirror = empty(WarpKind::Ward { alpha: 0.0 }, vec![0.0], 2, 2);
+        assert_eq!(
             mirror.err().map(|e| e.to_string()).as_deref(),
-            Some("measurement grid: warp ward:alpha=0 is in the mirror limit (alpha < 0.001) and has no inverse")
+            Some(format!("measurement grid: {MIRROR_MSG}").as_str())
         );
     }
 }

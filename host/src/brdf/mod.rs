@@ -18,6 +18,7 @@ pub mod fit_lobes;
 pub mod frame;
 pub mod grid;
 pub mod half_diff;
+mod log_nnls;
 pub mod merl;
 pub mod microfacet;
 pub mod nbrdf;

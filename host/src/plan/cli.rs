@@ -100,25 +100,23 @@ pub struct TradeoffArgs {
     /// Default 2x2,4x4,8x8,16x16 (table1: 2x2,4x4,8x4,8x8).
     #[arg(long, value_parser = tradeoff::parse_grids)]
     pub levels: Option<tradeoff::Grids>,
-    /// Strategies (repeatable); default all five.
+    /// Strategies (repeatable); default all four.
     #[arg(long = "strategy", value_enum)]
     pub strategies: Vec<tradeoff::TradeStrategy>,
     #[arg(long, default_value_t = 8)]
     pub incoming: usize,
-    /// How the reconstruction finds u between incoming slices.
-    #[arg(long, value_enum, default_value_t = super::PlanConfig::default().lookup)]
-    pub lookup: super::Lookup,
-    /// What the reconstruction interpolates between nodes.
-    #[arg(long, value_enum, default_value_t = super::PlanConfig::default().interp)]
-    pub interp: super::Interp,
     /// What the reconstruction interpolates on top of: Lambert plus two GGX lobes with a bounded
     /// Fresnel rise fitted to each level's own measurements (two-lobes), the same without the rise
     /// (two-lobes-plain), two-lobes with the Lambert term under the darkest measurement
     /// (two-lobes-capped, a trial: docs/tradeoff/README.md), two-lobes fitted to the capture photo's
     /// pixels too (two-lobes-photo, a trial: the photo shares the point-light score's light), one
     /// lobe (fit), or nothing (none). The same for every strategy.
-    #[arg(long, value_enum, default_value_t = super::PlanConfig::default().prior)]
-    pub prior: super::Prior,
+    #[arg(
+        long,
+        default_value = super::trials::PRIOR_NAMES[0],
+        value_parser = clap::builder::PossibleValuesParser::new(super::trials::PRIOR_NAMES)
+    )]
+    pub prior: String,
     /// Point-light render side in pixels (default 128; table1: 256).
     #[arg(long)]
     pub size: Option<usize>,
@@ -219,7 +217,6 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
         spacing: args.spacing,
         k: args.incoming,
         grids: super::square_grids(max_level),
-        ..PlanConfig::default()
     };
     let planner = Planner::new(instrument, estimate.clone())?;
     let t0 = std::time::Instant::now();
@@ -387,8 +384,6 @@ pub fn run_tradeoff(args: TradeoffArgs) -> Result<()> {
         cfg.strategies.dedup();
     }
     cfg.k = args.incoming;
-    cfg.lookup = args.lookup;
-    cfg.interp = args.interp;
     cfg.prior = args.prior;
     if let Some(size) = args.size {
         cfg.size = size;

@@ -8,7 +8,7 @@
 //! highlight's centre out to the rim. Each pixel is P = s f(wi, wo) cos(theta_i) E(p), with E the
 //! light's irradiance at the point (known from the scene) and s the light x exposure scale;
 //! `PhotoSamples` holds (wi, wo) and P / (cos(theta_i) E) = s f. `append_weighted` takes s = 1, a
-//! calibrated capture (as `gonio tradeoff`'s rendered one is); `Prior::TwoLobesPhoto` is a trial
+//! calibrated capture (as `gonio tradeoff`'s rendered one is); `trials::PhotoTwoLobesPrior` is a trial
 //! (docs/tradeoff/README.md), and an uncalibrated photo would need s fitted too.
 //!
 //! The geometry is the renderer's own (camera ray through the pixel centre, the shape's hit, the

@@ -1,7 +1,7 @@
 //! The accuracy-vs-time report (`gonio plan-report`): for each material, plan with each strategy,
 //! measure the ground truth at the planned directions (the virtual scan without effects),
-//! reconstruct every level and score it; compare the stopping rules with the oracle, the incoming
-//! spacings, and the orders' motion times.
+//! reconstruct every level and score it; compare the stopping rules with the oracle and the
+//! orders' motion times.
 //!
 //! Scoring: the capture scene (`examples/sphere-point.toml`: a sphere under a point light, rendered
 //! at `size` pixels) of the reconstruction against that of the ground truth, with `render::metrics`
@@ -15,6 +15,7 @@ use super::{estimate_for, Estimate, Plan, PlanConfig, PlanError, Planner, Spacin
 use crate::brdf::fit::fit_directions;
 use crate::brdf::{parse_material, Material};
 use crate::plot::{Chart, Mark, Series};
+use crate::reconstruct::{reconstruct, reconstruct_with, NoPrior};
 use crate::render::brdf_sampling::BrdfSampler;
 use crate::render::metrics::{compare, Comparison};
 use crate::render::{render_plain, Image, Scene};
@@ -27,8 +28,8 @@ use std::time::Instant;
 /// The capture scene the renders use.
 const CAPTURE_SCENE: &str = include_str!("../../../examples/sphere-point.toml");
 
-/// Default materials: four MERL neural fits (the paper's Table 1 set) and two analytic lobes that
-/// the pure-specular warp handles badly (a sharp peak on a diffuse base; a rough lobe).
+/// Default materials: four MERL neural fits (the paper's Table 1 set) and two analytic lobes (a
+/// sharp peak on a diffuse base; a rough lobe).
 pub const DEFAULT_MATERIALS: [&str; 6] = [
     "nbrdf:pink-fabric",
     "nbrdf:green-metallic-paint",
@@ -46,8 +47,6 @@ pub struct ReportConfig {
     pub size: usize,
     /// FLIP targets for the stopping rules.
     pub flip_targets: Vec<f64>,
-    /// Level at which the incoming spacings are compared.
-    pub spacing_level: usize,
     /// Incoming spacing of the strategy comparison.
     pub spacing: Spacing,
 }
@@ -60,7 +59,6 @@ impl Default for ReportConfig {
             k: 8,
             size: 128,
             flip_targets: vec![0.1, 0.05],
-            spacing_level: 3,
             spacing: Spacing::Angle,
         }
     }
@@ -137,7 +135,7 @@ pub const PREDICTIVE_SIZE: usize = 128;
 /// capture render meets `meets` against the estimate's own render; None if no level does.
 /// `gonio plan` and `gonio scan` both choose their level with it.
 ///
-/// The simulation reconstructs without the fitted prior (`Prior::None`), whatever the plan's: an
+/// The simulation reconstructs without the fitted prior (`NoPrior`), whatever the scan's: an
 /// analytic estimate is exactly what the prior fits, so with it every level would predict a perfect
 /// render and the rule would always stop at the first. Without it the rule predicts the grid's own
 /// error, an upper estimate of the real scan's (which has the prior to help).
@@ -150,7 +148,7 @@ pub fn predictive_level(
     let reference = scorer.render(estimate.material());
     let values = plan.measure(estimate.material().as_ref());
     for l in &plan.levels {
-        let image = scorer.render(Box::new(plan.reconstruct_with(l.level, &values, super::Prior::None)?));
+        let image = scorer.render(Box::new(reconstruct_with(plan, l.level, &values, &NoPrior)?));
         if meets(&score(&reference, &image)?) {
             return Ok(Some(l.level));
         }
@@ -242,12 +240,12 @@ fn evaluate(
     let mut prev: Option<Image> = None;
     let (mut cum_motion, mut cum_raster_motion, mut cum_bound) = (0.0, 0.0, 0.0);
     for l in &plan.levels {
-        let grid = plan.reconstruct(l.level, &measured)?;
+        let grid = reconstruct(&plan, l.level, &measured)?;
         let log_err = scorer.log_err(truth, &grid);
         let img = scorer.render(Box::new(grid));
         let c = score(truth_img, &img)?;
         // The predictive rule's simulation, as `predictive_level` runs it (no prior).
-        let est_grid = plan.reconstruct_with(l.level, &est_measured, super::Prior::None)?;
+        let est_grid = reconstruct_with(&plan, l.level, &est_measured, &NoPrior)?;
         let est_rec = scorer.render(Box::new(est_grid));
         let predicted = score(est_img, &est_rec)?;
         let step = match &prev {
@@ -403,7 +401,6 @@ pub fn run(
 ) -> Result<String, PlanError> {
     let mut scorer = Scorer::new(cfg.size)?;
     let mut rows: Vec<Row> = Vec::new();
-    let mut spacing_rows: Vec<Row> = Vec::new();
     let mut stops = Vec::new();
     // Resolve every material first: a bad spec fails before any work.
     let mut inputs = Vec::new();
@@ -416,13 +413,12 @@ pub fn run(
     for (spec, truth, estimate) in &inputs {
         let truth_img = scorer.render(parse_material(spec)?);
         let est_img = scorer.render(estimate.material());
-        for strategy in [Strategy::Specular, Strategy::Mixture, Strategy::Uniform] {
+        for strategy in [Strategy::Mixture, Strategy::Uniform] {
             let config = PlanConfig {
                 strategy,
                 spacing: cfg.spacing,
                 k: cfg.k,
                 grids: super::square_grids(cfg.max_level),
-                ..PlanConfig::default()
             };
             let e = evaluate(
                 &mut scorer,
@@ -446,33 +442,11 @@ pub fn run(
             ));
             rows.extend(e.rows);
         }
-        for spacing in [Spacing::Cosine, Spacing::Angle, Spacing::Rgl] {
-            let config = PlanConfig {
-                strategy: Strategy::Mixture,
-                spacing,
-                k: cfg.k,
-                grids: super::square_grids(cfg.spacing_level.min(cfg.max_level)),
-                ..PlanConfig::default()
-            };
-            let e = evaluate(
-                &mut scorer,
-                instrument,
-                spec,
-                truth.as_ref(),
-                &truth_img,
-                estimate,
-                &est_img,
-                &config,
-            )?;
-            spacing_rows.extend(e.rows.last().cloned());
-        }
-        progress(&format!("{spec}: spacings done"));
     }
 
     write(dir, "plan-report.csv", &csv(&rows)?)?;
-    write(dir, "plan-spacing.csv", &csv(&spacing_rows)?)?;
     write(dir, "plan-stopping.csv", &csv(&stops)?)?;
-    let md = markdown(cfg, &rows, &spacing_rows, &stops);
+    let md = markdown(cfg, &rows, &stops);
     write(dir, "report.md", md.as_bytes())?;
     charts(dir, cfg, &rows)?;
     Ok(md)
@@ -482,7 +456,7 @@ pub(super) fn short(spec: &str) -> &str {
     spec.strip_prefix("nbrdf:").unwrap_or(spec)
 }
 
-fn markdown(cfg: &ReportConfig, rows: &[Row], spacing: &[Row], stops: &[StopChoice]) -> String {
+fn markdown(cfg: &ReportConfig, rows: &[Row], stops: &[StopChoice]) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
@@ -519,27 +493,23 @@ fn markdown(cfg: &ReportConfig, rows: &[Row], spacing: &[Row], stops: &[StopChoi
             r.brdf_log_err
         );
     }
-    // Wins of the mixture over the other two at equal level.
-    let mut wins = [[0usize; 2]; 2];
+    // Wins of the mixture over the uniform grid at equal level.
+    let mut wins = [0usize; 2];
     let mut total = 0;
     for r in rows.iter().filter(|r| r.strategy == "mixture") {
-        let other = |name: &str| {
-            rows.iter()
-                .find(|o| o.strategy == name && o.material == r.material && o.level == r.level)
-        };
-        if let (Some(sp), Some(un)) = (other("specular"), other("uniform")) {
+        let uniform = rows
+            .iter()
+            .find(|o| o.strategy == "uniform" && o.material == r.material && o.level == r.level);
+        if let Some(un) = uniform {
             total += 1;
-            wins[0][0] += (r.flip <= sp.flip) as usize;
-            wins[0][1] += (r.brdf_log_err <= sp.brdf_log_err) as usize;
-            wins[1][0] += (r.flip <= un.flip) as usize;
-            wins[1][1] += (r.brdf_log_err <= un.brdf_log_err) as usize;
+            wins[0] += (r.flip <= un.flip) as usize;
+            wins[1] += (r.brdf_log_err <= un.brdf_log_err) as usize;
         }
     }
     let _ = writeln!(
         s,
-        "\nMixture at least as good as pure-specular: FLIP {}/{total}, brdf_log_err {}/{total}; \
-         as uniform: FLIP {}/{total}, brdf_log_err {}/{total} (material x level).\n",
-        wins[0][0], wins[0][1], wins[1][0], wins[1][1]
+        "\nMixture at least as good as uniform: FLIP {}/{total}, brdf_log_err {}/{total} (material x level).\n",
+        wins[0], wins[1]
     );
     let _ = writeln!(s, "## Motion time: optimised order vs raster (generation) order vs lower bound\n\n\
         Lower bound: per level, the degree bound of an open path through the level's new directions (`plan::order`): every \
@@ -583,22 +553,6 @@ fn markdown(cfg: &ReportConfig, rows: &[Row], spacing: &[Row], stops: &[StopChoi
             c.convergence_minutes
         );
     }
-    let _ = writeln!(
-        s,
-        "\n## Incoming spacing (mixture, {0}x{0})\n\n| material | spacing | PSNR | FLIP | brdf_log_err |\n|---|---|---|---|---|",
-        1usize << cfg.spacing_level.min(cfg.max_level)
-    );
-    for r in spacing {
-        let _ = writeln!(
-            s,
-            "| {} | {} | {:.2} | {:.4} | {:.4} |",
-            short(&r.material),
-            r.spacing,
-            r.psnr,
-            r.flip,
-            r.brdf_log_err
-        );
-    }
     let _ = writeln!(s, "\nFigures: `plan-flip.png`, `plan-logerr.png` (error vs gonio minutes, one panel per material), `plan-order.png` (motion minutes per strategy and order).");
     s
 }
@@ -608,7 +562,7 @@ fn markdown(cfg: &ReportConfig, rows: &[Row], spacing: &[Row], stops: &[StopChoi
 pub(super) const PLOT_FLOOR: f64 = 1e-5;
 
 fn charts(dir: &Path, cfg: &ReportConfig, rows: &[Row]) -> Result<(), PlanError> {
-    // One panel per material (three strategies each): one chart with every material's curves had
+    // One panel per material (two strategies each): one chart with every material's curves had
     // too many series to read.
     let panels = |metric: fn(&Row) -> f64, label: &str| -> Result<(usize, usize, Vec<u8>), PlanError> {
         let (w, h) = (520u32, 360u32);
@@ -619,7 +573,7 @@ fn charts(dir: &Path, cfg: &ReportConfig, rows: &[Row]) -> Result<(), PlanError>
             c.y_log = true;
             c.width = w;
             c.height = h;
-            for st in ["specular", "mixture", "uniform"] {
+            for st in ["mixture", "uniform"] {
                 let pts: Vec<(f64, f64)> = rows
                     .iter()
                     .filter(|r| &r.material == m && r.strategy == st)

@@ -11,18 +11,18 @@
 //! photo of the material rendered per `examples/capture.toml`: the mixture warp for a sharp
 //! estimate, the uniform grid for a rough one), `adaptive-true` (the same from the true parameters:
 //! analytic materials themselves, others their GGX fit), `mixture` (the mixture warp from the
-//! encoder's estimate whatever its roughness), `specular` (the paper's pure-specular warp, from
-//! the same estimate, as in the paper), `uniform` (equal steps in theta_o and phi_o, the same
+//! encoder's estimate whatever its roughness), `uniform` (equal steps in theta_o and phi_o, the same
 //! grids, hence the same count: see the planner's nudge rule; its reconstruction reads the same
 //! photo estimate as `adaptive`'s).
 
 use super::report::{csv, score, short, write, Scorer, PLOT_FLOOR};
-use super::{estimate_for, Estimate, PlanConfig, PlanError, Planner, Spacing, Strategy};
+use super::{estimate_for, trials, Estimate, PlanConfig, PlanError, Planner, Spacing, Strategy};
 use crate::brdf::parse_material;
 use crate::encoder::dataset::capture_scene;
 use crate::encoder::infer::Encoder;
 use crate::encoder::ModelKind;
 use crate::plot::{Chart, Mark, Series};
+use crate::reconstruct::{reconstruct_with, Prior, TwoLobesPrior};
 use crate::render::render_with;
 use crate::render::{Image, Scene};
 use gonio_shared::instrument::InstrumentConfig;
@@ -128,17 +128,14 @@ pub enum TradeStrategy {
     AdaptiveTrue,
     /// The mixture warp from the encoder's estimate, whatever its roughness.
     Mixture,
-    /// The paper's pure-specular warp (GGX visible normals), from the encoder's estimate.
-    Specular,
     /// Equal steps in (theta_o, phi_o).
     Uniform,
 }
 
-pub const ALL_STRATEGIES: [TradeStrategy; 5] = [
+pub const ALL_STRATEGIES: [TradeStrategy; 4] = [
     TradeStrategy::Adaptive,
     TradeStrategy::AdaptiveTrue,
     TradeStrategy::Mixture,
-    TradeStrategy::Specular,
     TradeStrategy::Uniform,
 ];
 
@@ -148,7 +145,6 @@ impl fmt::Display for TradeStrategy {
             TradeStrategy::Adaptive => "adaptive",
             TradeStrategy::AdaptiveTrue => "adaptive-true",
             TradeStrategy::Mixture => "mixture",
-            TradeStrategy::Specular => "specular",
             TradeStrategy::Uniform => "uniform",
         })
     }
@@ -159,18 +155,17 @@ impl TradeStrategy {
         match self {
             TradeStrategy::Adaptive | TradeStrategy::AdaptiveTrue => Strategy::Auto,
             TradeStrategy::Mixture => Strategy::Mixture,
-            TradeStrategy::Specular => Strategy::Specular,
             TradeStrategy::Uniform => Strategy::Uniform,
         }
     }
     /// Whether the plan is built from the photo estimate (else from the true parameters). The
     /// uniform grid places nothing by its estimate, but its reconstruction reads one (the prior's
-    /// sharp-lobe floor, `plan::sharp_lobe_floor`): it gets the photo's, the information a real
+    /// sharp-lobe floor, `reconstruct::prior::sharp_lobe_floor`): it gets the photo's, the information a real
     /// scan has, so that it and `adaptive` differ only in where the directions go.
     fn uses_photo(self) -> bool {
         matches!(
             self,
-            TradeStrategy::Adaptive | TradeStrategy::Mixture | TradeStrategy::Specular | TradeStrategy::Uniform
+            TradeStrategy::Adaptive | TradeStrategy::Mixture | TradeStrategy::Uniform
         )
     }
 }
@@ -215,12 +210,9 @@ pub struct TradeoffConfig {
     pub paper: bool,
     /// The preset this config came from (for the regenerate line), if any.
     pub preset: Option<Preset>,
-    /// The reconstruction's u lookup and interpolated quantity.
-    pub lookup: super::Lookup,
-    pub interp: super::Interp,
-    /// What every strategy's reconstruction interpolates on top of (the same for all, so the
-    /// comparison is of where the directions go).
-    pub prior: super::Prior,
+    /// The name of the prior every strategy's reconstruction interpolates on top of
+    /// (`trials::PRIOR_NAMES`; the same for all, so the comparison is of where the directions go).
+    pub prior: String,
     /// Also write `renders/<material>.png`: every reconstruction's point-light and environment
     /// renders beside the truth's (`render_sheet`).
     pub renders: bool,
@@ -228,7 +220,6 @@ pub struct TradeoffConfig {
 
 impl Default for TradeoffConfig {
     fn default() -> Self {
-        let plan_defaults = super::PlanConfig::default();
         Self {
             materials: super::report::DEFAULT_MATERIALS.iter().map(|s| s.to_string()).collect(),
             strategies: ALL_STRATEGIES.to_vec(),
@@ -240,10 +231,8 @@ impl Default for TradeoffConfig {
             env_spp: 64,
             paper: false,
             preset: None,
-            // The planner's reconstruction, so the report scores what a scan would produce.
-            lookup: plan_defaults.lookup,
-            interp: plan_defaults.interp,
-            prior: plan_defaults.prior,
+            // The product's prior, so the report scores what a scan would produce.
+            prior: TwoLobesPrior.name().to_string(),
             renders: false,
         }
     }
@@ -357,7 +346,7 @@ pub fn capture_photo(spec: &str) -> Result<(Scene, Image), PlanError> {
 }
 
 /// Every `PHOTO_STRIDE`-th pixel of the 256 px capture photo in x and y feeds
-/// `Prior::TwoLobesPhoto` (about 2600 samples; with every 8th the environment FLIP was worse on training and its pool,
+/// the two-lobes-photo prior (about 2600 samples; with every 8th the environment FLIP was worse on training and its pool,
 /// docs/tradeoff/README.md).
 const PHOTO_STRIDE: usize = 4;
 
@@ -400,7 +389,7 @@ pub fn run(
         None
     };
     // The photo prior reads the capture photo's pixels (`photo_samples`), for every strategy.
-    let needs_samples = cfg.prior == super::Prior::TwoLobesPhoto;
+    let needs_samples = trials::needs_photo(&cfg.prior);
     let mut inputs = Vec::new();
     for spec in &cfg.materials {
         let truth = parse_material(spec)?;
@@ -420,19 +409,17 @@ pub fn run(
             (Some(e), Some((_, img))) => Some(photo_estimate(img, e)?),
             _ => None,
         };
-        let samples = match (&capture, needs_samples) {
-            (Some((scene, img)), true) => Some(
-                super::photo_samples::photo_samples(scene, img, None, PHOTO_STRIDE)
-                    .map_err(|e| PlanError::Invalid(format!("{spec}: {e}")))?,
-            ),
-            _ => None,
-        };
-        inputs.push((spec.clone(), truth, (true_estimate, fit_seconds), photo, samples));
+        let prior = trials::prior_by_name(&cfg.prior, || match &capture {
+            Some((scene, img)) => super::photo_samples::photo_samples(scene, img, None, PHOTO_STRIDE),
+            None => Err("no capture photo".into()),
+        })
+        .map_err(|e| PlanError::Invalid(format!("{spec}: {e}")))?;
+        inputs.push((spec.clone(), truth, (true_estimate, fit_seconds), photo, prior));
     }
     std::fs::create_dir_all(dir).map_err(|e| PlanError::Invalid(format!("{}: {e}", dir.display())))?;
     let mut rows: Vec<TradeRow> = Vec::new();
     let mut sheets: Vec<(String, Vec<u8>, usize, usize)> = Vec::new();
-    for (spec, truth, true_est, photo, samples) in &inputs {
+    for (spec, truth, true_est, photo, prior) in &inputs {
         let truth_img = scorer.render(parse_material(spec)?);
         let truth_env = scorer
             .render_env(parse_material(spec)?, spec)
@@ -452,19 +439,13 @@ pub fn run(
                 spacing: cfg.spacing,
                 k: cfg.k,
                 grids: cfg.grids.clone(),
-                lookup: cfg.lookup,
-                interp: cfg.interp,
-                prior: cfg.prior,
             };
             let t0 = Instant::now();
-            let mut plan = Planner::new(*instrument, estimate.clone())?.plan(&config)?;
+            let plan = Planner::new(*instrument, estimate.clone())?.plan(&config)?;
             let plan_seconds = t0.elapsed().as_secs_f64();
-            if let Some(samples) = samples {
-                plan.set_photo(samples.clone());
-            }
             let measured = plan.measure(truth.as_ref());
             for l in &plan.levels {
-                let grid = plan.reconstruct(l.level, &measured)?;
+                let grid = reconstruct_with(&plan, l.level, &measured, prior.as_ref())?;
                 let log_err = scorer.log_err(truth.as_ref(), &grid);
                 let point_img = scorer.render(Box::new(grid.clone()));
                 let point = score(&truth_img, &point_img)?;
@@ -522,7 +503,8 @@ pub fn run(
             sheets.push((name, rgb, w, h));
         }
     }
-    let md = markdown(cfg, &rows);
+    let about = inputs.first().map_or("", |i| i.4.about());
+    let md = markdown(cfg, &rows, about);
     let (tw, th, rgb) = chart_rgb(cfg, &rows)?;
     let table = csv(&rows)?;
     // Every output is computed before the first write; each is written atomically.
@@ -621,11 +603,9 @@ fn command(cfg: &TradeoffConfig) -> String {
     let grids: Vec<String> = cfg.grids.iter().map(|(n, m)| format!("{n}x{m}")).collect();
     let _ = write!(
         c,
-        " --levels {} --incoming {} --lookup {} --interp {} --prior {} --size {} --env-size {} --env-spp {} -o DIR",
+        " --levels {} --incoming {} --prior {} --size {} --env-size {} --env-spp {} -o DIR",
         grids.join(","),
         cfg.k,
-        cfg.lookup,
-        cfg.interp,
         cfg.prior,
         cfg.size,
         cfg.env_size,
@@ -667,7 +647,8 @@ fn find<'a>(rows: &'a [TradeRow], material: &str, strategy: &str, level: usize) 
         .find(|r| r.material == material && r.strategy == strategy && r.level == level)
 }
 
-fn markdown(cfg: &TradeoffConfig, rows: &[TradeRow]) -> String {
+/// The report; `about` says how the prior fits (`Prior::about`).
+fn markdown(cfg: &TradeoffConfig, rows: &[TradeRow], about: &str) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
@@ -683,43 +664,15 @@ fn markdown(cfg: &TradeoffConfig, rows: &[TradeRow]) -> String {
          Times: planned gonio minutes (IK replay, shared motion profile, settle + exposure), host seconds \
          (photo -> estimate -> ordered plan, all levels).\n\n\
          Reconstruction (the same for every strategy, so the comparison is of where the directions go): \
-         lookup `{}`, interpolation `{}`, prior `{}`{}.\n",
+         lookup `query`, interpolation `ratio`, prior `{}`{}.\n",
         command(cfg),
         cfg.size,
         cfg.size,
         cfg.env_size,
         cfg.env_size,
         cfg.env_spp,
-        cfg.lookup,
-        cfg.interp,
         cfg.prior,
-        match cfg.prior {
-            super::Prior::Fit => {
-                " (each level's measurements are fitted with GGX + Lambert, the `gonio brdf fit` loss, each \
-                 sample weighted by the equal-angle measure it stands for; the grid interpolates the residuals \
-                 and the fitted lobe is evaluated at the query)"
-            }
-            super::Prior::TwoLobes => {
-                " (each level's measurements are fitted with a diffuse base (Lambert plus a coated diffuse \
-                 that darkens toward grazing) + two GGX lobes with a bounded Schlick Fresnel rise each, \
-                 `brdf::fit_lobes`, the `gonio brdf fit` loss, each sample weighted by the \
-                 equal-angle measure it stands for; the grid interpolates the residuals and the fitted lobes \
-                 are evaluated at the query)"
-            }
-            super::Prior::TwoLobesPlain => {
-                " (as two-lobes, without the Fresnel rise: an ablation)"
-            }
-            super::Prior::TwoLobesPhoto => {
-                " (as two-lobes, fitted to the capture photo's pixels too, weighed `plan::PHOTO_WEIGHT` times the \
-                 measurements: a trial; the photo is taken under the point light that scores, so the point-light errors are not \
-                 independent of the fit's data)"
-            }
-            super::Prior::TwoLobesCapped => {
-                " (as two-lobes, with the Lambert term no brighter than the darkest measurement within 80 deg of \
-                 the normal: a trial)"
-            }
-            super::Prior::None => " (the grid interpolates the measurements themselves)",
-        }
+        about
     );
     let _ = writeln!(
         s,
@@ -1079,7 +1032,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let cfg = tiny(vec![
             TradeStrategy::AdaptiveTrue,
-            TradeStrategy::Specular,
+            TradeStrategy::Mixture,
             TradeStrategy::Uniform,
         ]);
         let md = run(&cfg, &default_instrument(), env_scene(), dir.path(), &|_| {}).expect("run");

@@ -13,7 +13,7 @@
 //!    acknowledge, through `link::Connection` (the code `gonio measure` runs), with the journal in
 //!    OUTDIR and a progress bar;
 //! 5. **reconstruct**: counts -> BRDF with the calibration at the pose each reading was taken,
-//!    then `Plan::reconstruct` of the chosen level;
+//!    then `reconstruct::reconstruct` of the chosen level;
 //! 6. **outputs** ([`outputs`]): `grid.json`, `measured.binary`, `measured.bsdf`, renders, and in
 //!    simulation the scores against the ground truth; `report.md`.
 //!
@@ -59,6 +59,8 @@ pub enum ScanError {
     Photo(#[from] crate::plan::photo::PhotoError),
     #[error(transparent)]
     Plan(#[from] crate::plan::PlanError),
+    #[error(transparent)]
+    Reconstruct(#[from] crate::reconstruct::ReconstructError),
     #[error(transparent)]
     PlanFile(#[from] crate::plan::file::PlanFileError),
     #[error(transparent)]
@@ -191,7 +193,6 @@ impl ScanRecord {
             spacing,
             k: self.incoming,
             grids: crate::plan::square_grids(self.max_level),
-            ..PlanConfig::default()
         })
     }
 
@@ -458,7 +459,7 @@ pub fn run(
     }
     let t = Instant::now();
     let values = calibrated_values(&measured.journal, planned.wire.len(), &instrument, &cal)?;
-    let grid = planned.plan.reconstruct(record.level, &values)?;
+    let grid = crate::reconstruct::reconstruct(&planned.plan, record.level, &values)?;
     times.reconstruct = t.elapsed().as_secs_f64();
     let t = Instant::now();
     let truth = record.sim_model(instrument)?.map(|m| m.material_spec);

@@ -67,8 +67,8 @@ pub struct OutputInputs<'a> {
     pub journal: &'a Journal,
     pub instrument: &'a InstrumentConfig<f64>,
     pub calibration: &'a Calibration,
-    /// The chosen level's reconstruction (the planner's lookup and interpolation).
-    pub grid: &'a crate::plan::Reconstruction,
+    /// The chosen level's reconstruction.
+    pub grid: &'a crate::reconstruct::Reconstruction,
     /// The ground truth's material spec (the simulated scene's sample).
     pub truth: Option<&'a str>,
 }

@@ -155,7 +155,7 @@ impl Marginal2D {
 
 /// Weight of the plain visible-normal density in the mixture (eq. 6's w_s): the share of nodes that
 /// stay where the pure-specular warp would put them, so a misestimated lobe still gets samples.
-/// With the reconstruction's fitted prior (`plan::Prior::TwoLobes`) the peak's samples pay more
+/// With the reconstruction's fitted prior (`reconstruct::TwoLobesPrior`) the peak's samples pay more
 /// than the estimate's f cos share (now w_f = 0.1): the fit needs the peak's height and width.
 /// Chosen on 14 MERL materials the encoder trained on (docs/tradeoff/README.md has the command),
 /// adaptive against uniform brdf_log_err wins of 56: (w_s, w_u) = (0.15, 0.5) 40, (0.3, 0.5) 41,

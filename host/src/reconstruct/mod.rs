@@ -1,0 +1,201 @@
+//! Step 4 of the pipeline: a level's measurements -> a material (docs/planner.md, "Reconstruction").
+//!
+//! A prior fitted to the level's own measurements (`prior`) gives the shape; the measurement grid
+//! holds each node's residual against it as a ratio, looked up through the warp re-centred on the
+//! query's own wi. This module never reads the planner: it reads a level through `Levels`.
+
+pub mod prior;
+
+pub use prior::{FittedPrior, LevelSamples, NoPrior, Prior, TwoLobesPrior, SHARP_FLOOR_SHARE};
+
+use crate::brdf::grid::{MeasurementGrid, NodeLayout};
+use crate::brdf::warp::{SliceWarp, UniformAngles, Warp};
+use crate::brdf::{BrdfError, Material};
+use glam::DVec3;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ReconstructError {
+    #[error("reconstruct: no level {0}")]
+    NoLevel(usize),
+    #[error("reconstruct: level {level} needs {need} values, got {got}")]
+    TooFewValues { level: usize, need: usize, got: usize },
+    #[error(transparent)]
+    Brdf(#[from] BrdfError),
+}
+
+/// One measured level as the reconstruction reads it.
+#[derive(Clone, Debug)]
+pub struct LevelNodes<'a> {
+    pub slices: &'a [SliceWarp],
+    pub thetas: &'a [f64],
+    pub layout: NodeLayout,
+    /// The level's N x M nodes per slice.
+    pub n: usize,
+    pub m: usize,
+    /// The measurement of node (k, i, j), at `(k * m + j) * n + i`; None where nothing was measured.
+    pub node_measurement: Vec<Option<usize>>,
+    /// (slice, wi, wo) of every measurement up to this level, in measurement order.
+    pub measured: Vec<(usize, DVec3, DVec3)>,
+    /// Roughness of the estimate the plan was built from (the prior's sharp-lobe floor reads it).
+    pub estimate_alpha: f64,
+}
+
+/// Whatever holds measured levels (a plan).
+pub trait Levels {
+    /// Level `level` (1-based); None if there is none.
+    fn level_nodes(&self, level: usize) -> Option<LevelNodes<'_>>;
+}
+
+/// Floor (sr^-1) of the ratio residual: ln(f + RATIO_FLOOR) guards the log and ignores noise-sized ratios.
+pub const RATIO_FLOOR: f64 = 1e-3;
+
+/// A value in the interpolated (ratio) space; a negative reading (noise) is clamped at 0.
+fn forward(v: DVec3) -> DVec3 {
+    v.max(DVec3::ZERO).map(|x| (x + RATIO_FLOOR).ln())
+}
+
+/// The value of a point of the interpolated space.
+fn inverse(v: DVec3) -> DVec3 {
+    v.map(|x| x.exp() - RATIO_FLOOR)
+}
+
+/// Whether a level of `n` rings laid out as `layout` keeps its residual grid on top of a fitted
+/// prior: not the first level of a lobe-following plan, which is the fit alone (docs/planner.md).
+pub fn level_keeps_residual(layout: NodeLayout, n: usize) -> bool {
+    !(layout == NodeLayout::NestedFarRing && n == 2)
+}
+
+/// The product's reconstruction of `level` from `values` (indexed like the measurements).
+pub fn reconstruct(levels: &dyn Levels, level: usize, values: &[DVec3]) -> Result<Reconstruction, ReconstructError> {
+    reconstruct_with(levels, level, values, &TwoLobesPrior)
+}
+
+/// `reconstruct` on top of another prior. Unmeasured nodes take their nearest measured neighbour's value.
+pub fn reconstruct_with(
+    levels: &dyn Levels,
+    level: usize,
+    values: &[DVec3],
+    prior: &dyn Prior,
+) -> Result<Reconstruction, ReconstructError> {
+    let nodes = levels.level_nodes(level).ok_or(ReconstructError::NoLevel(level))?;
+    let need = nodes.measured.len();
+    if values.len() < need {
+        return Err(ReconstructError::TooFewValues {
+            level,
+            need,
+            got: values.len(),
+        });
+    }
+    let cells = nodes.thetas.len() * nodes.n * nodes.m;
+    let mut grid = MeasurementGrid::from_slices(
+        nodes.slices.to_vec(),
+        nodes.layout,
+        nodes.thetas.to_vec(),
+        nodes.n,
+        nodes.m,
+        vec![DVec3::ZERO; cells],
+        vec![false; cells],
+    )?;
+    let values = &values[..need];
+    let fitted = prior.fit(&samples_of(&nodes, values));
+    // Without a prior the grid is the whole reconstruction, so it always keeps the values.
+    let residual = fitted.is_none() || level_keeps_residual(nodes.layout, nodes.n);
+    for k in 0..nodes.thetas.len() {
+        for j in 0..nodes.m {
+            for i in 0..nodes.n {
+                let v = nodes.node_measurement[(k * nodes.m + j) * nodes.n + i].map(|d| {
+                    // A fit-alone level stores zero residuals.
+                    if !residual {
+                        return DVec3::ZERO;
+                    }
+                    let base = match &fitted {
+                        Some(p) => forward(p.eval(nodes.measured[d].1, nodes.measured[d].2)),
+                        None => DVec3::ZERO,
+                    };
+                    forward(values[d]) - base
+                });
+                grid.set_node(k, i, j, v);
+            }
+        }
+    }
+    grid.fill_from_nearest();
+    Ok(Reconstruction {
+        grid,
+        slices: nodes.slices.to_vec(),
+        prior: fitted,
+    })
+}
+
+/// The level's samples with the equal-angle measure each stands for (p_angles / p_warp), so a fit
+/// weighs the hemisphere as brdf_log_err does however densely the plan crowds a peak.
+fn samples_of<'a>(nodes: &LevelNodes<'_>, values: &'a [DVec3]) -> LevelSamples<'a> {
+    let pairs = nodes.measured.iter().map(|&(_, wi, wo)| (wi, wo)).collect();
+    let weights = nodes
+        .measured
+        .iter()
+        .map(|&(k, _, wo)| {
+            let p = nodes.slices[k].pdf(wo);
+            let w = UniformAngles.pdf(wo) / p;
+            // Guard: a zero or non-finite density gets weight 0.
+            if p > 0.0 && w.is_finite() {
+                w
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    LevelSamples {
+        pairs,
+        values,
+        weights,
+        estimate_alpha: nodes.estimate_alpha,
+    }
+}
+
+/// A level's measurements as a material: the fitted prior times the interpolated ratio grid.
+#[derive(Clone, Debug)]
+pub struct Reconstruction {
+    grid: MeasurementGrid,
+    slices: Vec<SliceWarp>,
+    prior: Option<FittedPrior>,
+}
+
+impl Reconstruction {
+    pub fn grid(&self) -> &MeasurementGrid {
+        &self.grid
+    }
+
+    /// The reconstruction's value (BRDF, 1/sr) at node (k, i, j); None where the node has no
+    /// direction or no value.
+    pub fn node_value(&self, k: usize, i: usize, j: usize) -> Option<DVec3> {
+        self.grid.node_value(k, i, j)?;
+        let (wi, wo) = self.grid.node_directions(k, i, j)?;
+        Some(self.eval(wi, wo))
+    }
+
+    /// The model fitted to the measurements, if the prior fitted one.
+    pub fn prior(&self) -> Option<&FittedPrior> {
+        self.prior.as_ref()
+    }
+}
+
+impl Material for Reconstruction {
+    fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
+        // Both bracketing slices look u up through the warp re-centred on the query's own wi.
+        let v = self
+            .grid
+            .eval_with_lookup(wi, wo, &|k, wi, wo| match self.slices.get(k)? {
+                SliceWarp::Mixture(m) => m.invert_from(wi, wo),
+                other => other.invert(wo),
+            });
+        let base = match &self.prior {
+            Some(p) => forward(p.eval(wi, wo)),
+            None => DVec3::ZERO,
+        };
+        // Guard: a residual from a node where the prior overshoots can take the sum below 0.
+        inverse(base + v).max(DVec3::ZERO)
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,133 @@
+use super::*;
+use crate::brdf::analytic::Ggx;
+use crate::brdf::frame::from_spherical;
+use crate::brdf::warp::WarpKind;
+
+/// A hand-made level: `k` uniform slices of 2 x 2 nodes, every node measured (nothing planned).
+struct Uniform2x2 {
+    slices: Vec<SliceWarp>,
+    thetas: Vec<f64>,
+    measured: Vec<(usize, DVec3, DVec3)>,
+}
+
+impl Uniform2x2 {
+    fn new(thetas: Vec<f64>) -> Self {
+        let slices: Vec<SliceWarp> = thetas
+            .iter()
+            .map(|&t| WarpKind::Uniform.for_incident(from_spherical(t, 0.0)))
+            .collect();
+        let grid = MeasurementGrid::from_slices(
+            slices.clone(),
+            NodeLayout::Nested,
+            thetas.clone(),
+            2,
+            2,
+            vec![DVec3::ZERO; thetas.len() * 4],
+            vec![false; thetas.len() * 4],
+        )
+        .expect("grid");
+        let mut measured = Vec::new();
+        for k in 0..thetas.len() {
+            for j in 0..2 {
+                for i in 0..2 {
+                    let (wi, wo) = grid.node_directions(k, i, j).expect("node above the horizon");
+                    measured.push((k, wi, wo));
+                }
+            }
+        }
+        Self {
+            slices,
+            thetas,
+            measured,
+        }
+    }
+}
+
+impl Levels for Uniform2x2 {
+    fn level_nodes(&self, level: usize) -> Option<LevelNodes<'_>> {
+        (level == 1).then(|| LevelNodes {
+            slices: &self.slices,
+            thetas: &self.thetas,
+            layout: NodeLayout::Nested,
+            n: 2,
+            m: 2,
+            node_measurement: (0..self.measured.len()).map(Some).collect(),
+            measured: self.measured.clone(),
+            estimate_alpha: 0.2,
+        })
+    }
+}
+
+/// The ratio space maps back to the value it came from at the extremes: 0, far under the floor, a
+/// mirror peak; a negative (noisy) reading comes back as 0.
+#[test]
+fn the_ratio_space_inverts_at_the_extremes() {
+    for f in [0.0, 1e-9, RATIO_FLOOR, 0.3, 1e4] {
+        let v = DVec3::new(f, 2.0 * f, 0.5 * f);
+        let back = inverse(forward(v));
+        assert!(
+            back.is_finite() && (back - v).abs().max_element() <= 1e-12 * (1.0 + v.max_element()),
+            "{f}: {back}"
+        );
+    }
+    assert!(inverse(forward(DVec3::splat(-0.1))).abs().max_element() < 1e-15);
+}
+
+#[test]
+fn only_the_far_ring_first_level_is_the_fit_alone() {
+    assert!(!level_keeps_residual(NodeLayout::NestedFarRing, 2));
+    assert!(level_keeps_residual(NodeLayout::NestedFarRing, 4));
+    assert!(level_keeps_residual(NodeLayout::Nested, 2));
+}
+
+/// At every node the reconstruction returns its measurement, with a prior and without.
+#[test]
+fn a_node_returns_its_measurement() {
+    let level = Uniform2x2::new(vec![0.0, 0.6, 1.2]);
+    let truth = Ggx {
+        alpha: 0.3,
+        diffuse: DVec3::new(0.3, 0.2, 0.1),
+        specular: DVec3::ONE,
+    };
+    let values: Vec<DVec3> = level.measured.iter().map(|&(_, wi, wo)| truth.eval(wi, wo)).collect();
+    for prior in [&NoPrior as &dyn Prior, &TwoLobesPrior] {
+        let rec = reconstruct_with(&level, 1, &values, prior).expect("rec");
+        assert_eq!(rec.prior().is_some(), prior.name() == "two-lobes");
+        for (&(_, wi, wo), v) in level.measured.iter().zip(&values) {
+            let r = rec.eval(wi, wo);
+            assert!(
+                (r - *v).abs().max_element() < 1e-9 * (1.0 + v.max_element()),
+                "{}: {r} vs {v}",
+                prior.name()
+            );
+        }
+    }
+}
+
+#[test]
+fn a_missing_level_or_too_few_values_is_an_error() {
+    let level = Uniform2x2::new(vec![0.0, 0.6]);
+    let values = vec![DVec3::splat(0.1); level.measured.len()];
+    assert!(matches!(
+        reconstruct(&level, 2, &values),
+        Err(ReconstructError::NoLevel(2))
+    ));
+    assert!(matches!(
+        reconstruct(&level, 1, &values[1..]),
+        Err(ReconstructError::TooFewValues { need: 8, got: 7, .. })
+    ));
+}
+
+/// The sharp-lobe floor is the smaller share of the estimate and of what the samples resolve.
+#[test]
+fn the_sharp_lobe_floor_never_exceeds_a_share_of_the_estimate() {
+    let level = Uniform2x2::new(vec![0.0, 0.6, 1.2]);
+    let pairs: Vec<(DVec3, DVec3)> = level.measured.iter().map(|&(_, wi, wo)| (wi, wo)).collect();
+    for alpha in [1e-4, 0.05, 1.0] {
+        let f = prior::sharp_lobe_floor(alpha, &pairs);
+        assert!(
+            f.is_finite() && f >= 0.0 && f <= SHARP_FLOOR_SHARE * alpha,
+            "{alpha}: {f}"
+        );
+    }
+}
