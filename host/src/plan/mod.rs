@@ -25,13 +25,11 @@
 //! * Order and time: `order` (NN + 2-opt + Or-opt within each level, after the previous level's last
 //!   pose), timed by replaying the firmware's IK and the shared motion profile.
 
-pub mod cli;
 pub mod file;
 pub mod order;
 pub mod photo;
 pub mod photo_samples;
-pub mod report;
-pub mod tradeoff;
+pub mod predict;
 
 use crate::brdf::analytic::Ggx;
 use crate::brdf::frame::{from_spherical, phi_of, theta_of};
@@ -73,7 +71,8 @@ pub enum PlanError {
 }
 
 /// Which outgoing warp.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, strum::EnumString, strum::VariantNames)]
+#[strum(serialize_all = "kebab-case")]
 pub enum Strategy {
     /// The estimate decides: `mixture` for a lobe sharper than alpha = 0.05 (`AUTO_SHARP_ALPHA`),
     /// `uniform` for a rougher one, where equal angles fed the fitted prior better (docs/tradeoff).
@@ -120,7 +119,8 @@ impl fmt::Display for Strategy {
 }
 
 /// Spacing of the incoming elevations.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, strum::EnumString, strum::VariantNames)]
+#[strum(serialize_all = "kebab-case")]
 pub enum Spacing {
     /// Equal steps in cos theta (the paper).
     Cosine,
@@ -173,7 +173,8 @@ impl Estimate {
 }
 
 /// How a reconstruction finds a query's u in the two bracketing incoming slices.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, strum::EnumString, strum::VariantNames)]
+#[strum(serialize_all = "kebab-case")]
 pub enum Lookup {
     /// Through each slice's own warp (built for the slice's wi).
     Slice,
@@ -194,7 +195,8 @@ impl fmt::Display for Lookup {
 }
 
 /// What the reconstruction interpolates between nodes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, strum::EnumString, strum::VariantNames)]
+#[strum(serialize_all = "kebab-case")]
 pub enum Interp {
     /// The measured values f.
     Linear,
@@ -226,7 +228,8 @@ impl fmt::Display for Interp {
 }
 
 /// What the reconstruction interpolates on top of.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, strum::EnumString, strum::VariantNames)]
+#[strum(serialize_all = "kebab-case")]
 pub enum Prior {
     /// Nothing: the grid interpolates the measured values themselves.
     None,

@@ -576,8 +576,8 @@ fn the_mixture_wins_the_hemisphere_and_nearly_ties_the_capture_slice() {
                 .map(|level| {
                     let rec = plan.reconstruct(level, &values).expect("reconstruct");
                     (
-                        report::log_err_over(&slice, truth.as_ref(), &rec),
-                        report::log_err_over(&hemisphere, truth.as_ref(), &rec),
+                        predict::log_err_over(&slice, truth.as_ref(), &rec),
+                        predict::log_err_over(&hemisphere, truth.as_ref(), &rec),
                     )
                 })
                 .collect()
@@ -637,7 +637,7 @@ fn a_ratio_residual_keeps_the_peak_correction_off_the_dark_shoulder() {
         assert_eq!(plan.layout(), crate::brdf::grid::NodeLayout::NestedFarRing);
         let values = plan.measure(truth.as_ref());
         let rec = plan.reconstruct(2, &values).expect("reconstruct");
-        report::log_err_over(&shoulder, truth.as_ref(), &rec)
+        predict::log_err_over(&shoulder, truth.as_ref(), &rec)
     };
     let (ratio, log) = (err(Interp::Ratio), err(Interp::Log));
     println!("tungsten-carbide 4x4, shoulder log err: ratio residual {ratio:.5}, log(1 + f) residual {log:.5}");
@@ -683,7 +683,7 @@ fn the_photo_prior_fits_the_photos_slice_and_needs_a_photo() {
         .to_string();
     assert!(e.contains("capture photo"), "{e}");
 
-    let scene = crate::encoder::dataset::capture_scene(spec, 128).expect("capture scene");
+    let scene = crate::encoder::capture::capture_scene(spec, 128).expect("capture scene");
     let photo = crate::render::render_with(&scene, &scene.settings, &|| {}).expect("render");
     let samples = photo_samples::photo_samples(&scene, &photo, None, 2).expect("photo samples");
     plan.set_photo(samples.clone());
@@ -692,7 +692,7 @@ fn the_photo_prior_fits_the_photos_slice_and_needs_a_photo() {
         .reconstruct_with(1, &values, Prior::TwoLobesPhoto)
         .expect("reconstruct");
     // The capture slice's error: brdf_log_err's formula over the photo's own pairs.
-    let slice_err = |rec: &dyn Material| report::log_err_over(&samples.pairs, truth.as_ref(), rec);
+    let slice_err = |rec: &dyn Material| predict::log_err_over(&samples.pairs, truth.as_ref(), rec);
     let (a, b) = (slice_err(&plain), slice_err(&with_photo));
     let (ha, hb) = (
         log_err_between_slices(truth.as_ref(), &plain),
