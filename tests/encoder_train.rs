@@ -2,9 +2,10 @@
 //! down, and the exported ONNX, reloaded in tract, must give the training framework's outputs.
 
 use gonio::encoder::infer::Encoder;
-use gonio::encoder::onnx::Weights;
-use gonio::encoder::train::{mae, train, TrainConfig};
-use gonio::encoder::{dataset, ModelKind, INPUT_LEN};
+use gonio::encoder::{ModelKind, INPUT_LEN};
+use gonio_lab::encoder::dataset;
+use gonio_lab::encoder::onnx::Weights;
+use gonio_lab::encoder::train::{mae, train, TrainConfig};
 
 /// `count` synthetic renders of `kind` (seed `seed`), loaded; the directory lives as long as the
 /// returned guard.
@@ -88,8 +89,8 @@ fn png_augmentation_feeds_clipped_photos_and_still_trains() {
 
 #[test]
 fn an_ensemble_with_flip_averaging_exports_what_candle_computes() {
-    use gonio::encoder::onnx::Model;
-    use gonio::encoder::train::{predict_ensemble, train_model, Recipe};
+    use gonio_lab::encoder::onnx::Model;
+    use gonio_lab::encoder::train::{predict_ensemble, train_model, Recipe};
     let (_dir, data) = tiny_dataset(ModelKind::Ggx, 6, 13);
     let cfg = TrainConfig {
         batch: 6,
@@ -124,7 +125,7 @@ fn an_ensemble_with_flip_averaging_exports_what_candle_computes() {
 
 #[test]
 fn cross_validation_predicts_every_row_from_a_model_that_never_saw_it() {
-    use gonio::encoder::train::{cross_validate, cv_csv, cv_summary, Recipe};
+    use gonio_lab::encoder::train::{cross_validate, cv_csv, cv_summary, Recipe};
     let (_dir, data) = tiny_dataset(ModelKind::Ggx, 6, 17);
     let cfg = TrainConfig {
         batch: 2,

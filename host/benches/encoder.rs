@@ -4,7 +4,7 @@
 //! plan). After criterion's groups, `main` prints the shares measured in the same run.
 
 use criterion::Criterion;
-use gonio::encoder::dataset::render_capture;
+use gonio::encoder::capture::render_capture;
 use gonio::encoder::infer::{shipped, Encoder};
 use gonio::encoder::{preprocess, resample_square, ModelKind};
 use gonio::plan::photo::estimate_from_image;

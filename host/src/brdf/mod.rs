@@ -8,10 +8,9 @@
 //! * `nbrdf`, `merl`, `rgl`: the neural MERL fits, the MERL `.binary` table, RGL `.bsdf` files.
 //! * `spec`: the command-line material strings (`ward:rho_d=0.2,alpha=0.1`, ...).
 //! * `warp`: the importance-sampling warps with their inverses; `grid`: the adaptive measurement
-//!   grid and its reconstruction; `fit`: analytic fits to a measured material; `cli`: `gonio brdf`.
+//!   grid and its reconstruction; `fit`: analytic fits to a measured material.
 
 pub mod analytic;
-pub mod cli;
 mod error;
 pub mod fit;
 pub mod fit_lobes;

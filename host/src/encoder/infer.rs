@@ -10,7 +10,7 @@ use tract_onnx::prelude::*;
 pub const WARD_ONNX: &[u8] = include_bytes!("../../models/ward.onnx");
 pub const GGX_ONNX: &[u8] = include_bytes!("../../models/ggx.onnx");
 
-/// Metadata keys our exporter writes (`onnx::export`).
+/// Metadata keys the lab's exporter writes (`gonio_lab::encoder::onnx`).
 pub const META_MODEL: &str = "gonio.model";
 
 pub fn shipped(kind: ModelKind) -> &'static [u8] {

@@ -3,20 +3,14 @@
 //! * this module: the two models, their parameters and output ranges, and the input convention
 //!   (photo loading and preprocessing) that training and inference share;
 //! * `infer`: the only place that touches tract (ONNX inference);
-//! * `onnx`: the ONNX graph writer (opset 13), from plain weight arrays;
-//! * `dataset`: `gonio dataset`, synthetic renders of `examples/capture.toml` and the MERL fits;
-//! * `observable`: what a capture photo shows of a BRDF, and the GGX alpha that alone supports;
-//! * `report`: accuracy tables, the intensity sweep and the predicted-vs-true plot;
-//! * `train` (cargo feature `train`): the candle network, training loop and export.
+//! * `capture`: the capture photo of a material (`examples/capture.toml`) as the network sees it;
+//! * `observable`: what a capture photo shows of a BRDF, and the GGX alpha that alone supports.
+//!
+//! Datasets, training, the ONNX writer and accuracy reports are the lab's (`gonio-lab`).
 
-pub mod cli;
-pub mod dataset;
+pub mod capture;
 pub mod infer;
 pub mod observable;
-pub mod onnx;
-pub mod report;
-#[cfg(feature = "train")]
-pub mod train;
 
 use crate::render::image::srgb_to_linear;
 use crate::render::Image;
@@ -52,7 +46,7 @@ impl EncoderError {
             reason: reason.to_string(),
         }
     }
-    pub(crate) fn dataset(path: &Path, reason: impl ToString) -> Self {
+    pub fn dataset(path: &Path, reason: impl ToString) -> Self {
         Self::Dataset {
             path: path.to_path_buf(),
             reason: reason.to_string(),
@@ -61,7 +55,8 @@ impl EncoderError {
 }
 
 /// Which analytic model a network predicts.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, strum::EnumString, strum::VariantNames)]
+#[strum(serialize_all = "kebab-case")]
 pub enum ModelKind {
     Ward,
     Ggx,
@@ -94,6 +89,12 @@ impl ParamRange {
     }
 }
 
+impl std::fmt::Display for ModelKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 impl ModelKind {
     pub fn name(self) -> &'static str {
         match self {
@@ -103,15 +104,11 @@ impl ModelKind {
     }
 
     pub fn from_name(name: &str) -> Option<Self> {
-        match name {
-            "ward" => Some(ModelKind::Ward),
-            "ggx" => Some(ModelKind::Ggx),
-            _ => None,
-        }
+        name.parse().ok()
     }
 
     /// The network's outputs, in order. The ranges are slightly wider than the training data's
-    /// (`dataset::sample_params`), because a sigmoid never reaches its ends.
+    /// (the lab's `dataset::sample_params`), because a sigmoid never reaches its ends.
     pub fn outputs(self) -> &'static [ParamRange] {
         match self {
             ModelKind::Ward => &[

@@ -12,7 +12,7 @@
 //! labels that far apart, and no encoder can read the label off the photo: a bound on what an encoder
 //! can reach, not a property of one network.
 
-use super::dataset::{capture_scene, ggx_alpha};
+use super::capture::{capture_scene, ggx_alpha};
 use super::INPUT_SIZE;
 use crate::brdf::fit::{fit_samples, FitModel, FitResult};
 use crate::brdf::Material;
@@ -71,7 +71,7 @@ pub fn theta_d(wi: DVec3, wo: DVec3) -> f64 {
 
 #[cfg(test)]
 mod tests {
-    use super::super::dataset::ggx_fit_alpha;
+    use super::super::capture::ggx_fit_alpha;
     use super::*;
     use crate::brdf::spec::parse_material;
 

@@ -14,7 +14,7 @@ use crate::journal::{Journal, JournalError};
 use gonio_shared::instrument::InstrumentConfig;
 use gonio_shared::kinematics::Kinematics;
 use gonio_shared::msg::{Direction, Measurement};
-pub use runner::{check_journal_state, print_run, run_options, Connection, MeasureError, Measured, TerminalProgress};
+pub use runner::{check_journal_state, run_options, Connection, MeasureError, Measured};
 pub use session::{Link, LinkError, LinkStats, LinkTiming, MeasurementSink};
 use std::path::Path;
 use std::time::{Duration, Instant};

@@ -7,15 +7,12 @@
 //! * Unreachable nodes are nudged toward a reachable direction or dropped (`Dropped`).
 //! * Order and time: `order` within each level, timed by replaying the firmware's IK.
 
-pub mod cli;
 pub mod file;
 pub mod order;
 pub mod photo;
 pub mod photo_samples;
 mod planner;
-pub mod report;
-pub mod tradeoff;
-pub mod trials;
+pub mod predict;
 
 pub use planner::Planner;
 
@@ -62,7 +59,8 @@ pub enum PlanError {
 }
 
 /// Which outgoing warp.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, strum::EnumString, strum::VariantNames)]
+#[strum(serialize_all = "kebab-case")]
 pub enum Strategy {
     /// The estimate decides: `mixture` for a lobe sharper than `AUTO_SHARP_ALPHA`, `uniform` for a rougher one.
     Auto,
@@ -98,7 +96,8 @@ impl fmt::Display for Strategy {
 }
 
 /// Spacing of the incoming elevations (recorded in plan and scan files).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, strum::EnumString, strum::VariantNames)]
+#[strum(serialize_all = "kebab-case")]
 pub enum Spacing {
     /// Equal steps in theta.
     Angle,

@@ -17,7 +17,7 @@
 use super::{Estimate, PlanError};
 use crate::brdf::analytic::{Ggx, Ward};
 use crate::brdf::spec::Analytic;
-use crate::encoder::dataset::render_capture;
+use crate::encoder::capture::render_capture;
 use crate::encoder::infer::Encoder;
 use crate::encoder::{load_photo, preprocess, resample_square, EncoderError, ModelKind, INPUT_SIZE};
 use crate::render::Image;

@@ -107,7 +107,7 @@ pub fn photo_samples(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::encoder::dataset::capture_scene;
+    use crate::encoder::capture::capture_scene;
     use crate::render::render_with;
 
     #[test]

@@ -485,8 +485,8 @@ fn the_mixture_wins_the_hemisphere_and_nearly_ties_the_capture_slice() {
                 .map(|level| {
                     let rec = reconstruct(&plan, level, &values).expect("reconstruct");
                     (
-                        report::log_err_over(&slice, truth.as_ref(), &rec),
-                        report::log_err_over(&hemisphere, truth.as_ref(), &rec),
+                        predict::log_err_over(&slice, truth.as_ref(), &rec),
+                        predict::log_err_over(&hemisphere, truth.as_ref(), &rec),
                     )
                 })
                 .collect()
@@ -533,7 +533,7 @@ fn the_ratio_residual_keeps_the_peak_correction_off_the_dark_shoulder() {
     assert_eq!(plan.layout(), crate::brdf::grid::NodeLayout::NestedFarRing);
     let values = plan.measure(truth.as_ref());
     let rec = reconstruct(&plan, 2, &values).expect("reconstruct");
-    let ratio = report::log_err_over(&shoulder, truth.as_ref(), &rec);
+    let ratio = predict::log_err_over(&shoulder, truth.as_ref(), &rec);
     println!("tungsten-carbide 4x4, shoulder log err: ratio residual {ratio:.5}");
     assert!(ratio < 0.7 * 0.00070, "ratio {ratio}");
 }

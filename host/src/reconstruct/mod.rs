@@ -65,6 +65,11 @@ pub fn level_keeps_residual(layout: NodeLayout, n: usize) -> bool {
     !(layout == NodeLayout::NestedFarRing && n == 2)
 }
 
+/// The product reconstruction's settings in one line (a scan records them; a resume compares them).
+pub fn settings() -> String {
+    format!("prior {}, ratio residual (floor {RATIO_FLOOR} /sr), query lookup", TwoLobesPrior.name())
+}
+
 /// The product's reconstruction of `level` from `values` (indexed like the measurements).
 pub fn reconstruct(levels: &dyn Levels, level: usize, values: &[DVec3]) -> Result<Reconstruction, ReconstructError> {
     reconstruct_with(levels, level, values, &TwoLobesPrior)

@@ -6,10 +6,9 @@
 //! * `renderer`: exact delta lights, MIS for the environment, stratified antialiasing, rayon rows.
 //! * `effects`: sensor/instrument effects on single readings and on images (built only when listed).
 //! * `image`: the image type and its EXR/PNG files; `metrics`: RMSE, PSNR, FLIP.
-//! * `sky`: the procedural sky shipped as `examples/sky.exr`; `cli`: `gonio render|compare|envmap`.
+//! * `sky`: the procedural sky shipped as `examples/sky.exr`.
 
 pub mod brdf_sampling;
-pub mod cli;
 pub mod distribution;
 pub mod effects;
 pub mod envmap;

@@ -19,16 +19,17 @@
 //!
 //! ## Resume
 //! Once a gonio has answered the handshake, and before the first direction is sent, OUTDIR gets
-//! everything a resume needs: `scan.toml` (the inputs: image, estimate to full precision, plan
-//! rule and level, instrument file text, the source (port, or the simulated scene's path and text,
-//! seed and speedup), render settings), `plan.bin` (the plan file `gonio measure` reads) and
-//! `calibration.toml`. `gonio scan --resume OUTDIR` re-reads them, plans again from the stored
-//! estimate (the planner is deterministic) and refuses to go on unless that plan encodes to the
-//! stored `plan.bin` byte for byte; then it continues the journal. The outputs depend only on the
-//! journal's readings, the plan and the calibration, so they equal an uninterrupted scan's.
+//! everything a resume needs: `scan.toml` (the gonio version and reconstruction settings, and the
+//! inputs: image, estimate to full precision, plan rule and level, instrument file text, the
+//! source (port, or the simulated scene's path and text, seed and speedup), render settings),
+//! `plan.bin` (the plan file `gonio measure` reads) and `calibration.toml`. `gonio scan --resume
+//! OUTDIR` refuses a scan made by another build or with other reconstruction settings, re-reads
+//! the rest, plans again from the stored estimate (the planner is deterministic) and refuses to go
+//! on unless that plan encodes to the stored `plan.bin` byte for byte; then it continues the
+//! journal. The outputs depend only on the journal's readings, the plan, the calibration and the
+//! reconstruction, so they equal an uninterrupted scan's.
 
 pub mod calibration;
-pub mod cli;
 pub mod outputs;
 
 use crate::encoder::ModelKind;
@@ -47,8 +48,8 @@ use std::time::Instant;
 pub const SCAN_FILE: &str = "scan.toml";
 pub const PLAN_FILE: &str = "plan.bin";
 pub const CALIBRATION_FILE: &str = "calibration.toml";
-/// Version of `scan.toml`.
-pub const SCAN_FORMAT: u32 = 1;
+/// Version of `scan.toml` (2: the gonio version and the reconstruction settings).
+pub const SCAN_FORMAT: u32 = 2;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ScanError {
@@ -129,6 +130,13 @@ pub struct SourceRecord {
 #[serde(deny_unknown_fields)]
 pub struct ScanRecord {
     pub format: u32,
+    /// The build that made the scan (`crate::VERSION`); a resume by another build is refused.
+    #[serde(default)]
+    pub gonio_version: String,
+    /// The reconstruction the scan's outputs use (`reconstruct::settings`); a resume whose
+    /// build reconstructs otherwise is refused.
+    #[serde(default)]
+    pub reconstruction: String,
     pub image: String,
     /// The encoder model and its raw outputs (`ModelKind::outputs` order).
     pub encoder: String,
@@ -178,15 +186,34 @@ impl ScanRecord {
         Ok(record)
     }
 
+    /// Refuse, in one line, a resume by a build that is not the one that made the scan or that
+    /// reconstructs otherwise: its outputs would not be the original scan's.
+    pub fn check_same_build(&self, dir: &Path) -> Result<(), ScanError> {
+        let here = crate::reconstruct::settings();
+        if self.gonio_version != crate::VERSION || self.reconstruction != here {
+            return Err(ScanError::Input(format!(
+                "--resume: {} was made by gonio {} (reconstruction {}), this is gonio {} (reconstruction {here}); resume it with the build that made it",
+                dir.join(SCAN_FILE).display(),
+                if self.gonio_version.is_empty() { "?" } else { &self.gonio_version },
+                if self.reconstruction.is_empty() { "?" } else { &self.reconstruction },
+                crate::VERSION,
+            )));
+        }
+        Ok(())
+    }
+
     pub fn instrument(&self, dir: &Path) -> Result<InstrumentConfig<f64>, ScanError> {
         Ok(crate::instrument::parse(&self.instrument_toml, &dir.join(SCAN_FILE))?)
     }
 
     pub fn plan_config(&self) -> Result<PlanConfig, ScanError> {
-        use clap::ValueEnum;
-        let strategy = Strategy::from_str(&self.strategy, true)
+        let strategy: Strategy = self
+            .strategy
+            .parse()
             .map_err(|_| ScanError::Input(format!("{SCAN_FILE}: unknown strategy {:?}", self.strategy)))?;
-        let spacing = Spacing::from_str(&self.spacing, true)
+        let spacing: Spacing = self
+            .spacing
+            .parse()
             .map_err(|_| ScanError::Input(format!("{SCAN_FILE}: unknown spacing {:?}", self.spacing)))?;
         Ok(PlanConfig {
             strategy,
@@ -334,7 +361,7 @@ fn predictive(
     meets: impl Fn(&crate::render::metrics::Comparison) -> bool,
     target: &str,
 ) -> Result<(usize, String), ScanError> {
-    Ok(match crate::plan::report::predictive_level(plan, estimate, meets)? {
+    Ok(match crate::plan::predict::predictive_level(plan, estimate, meets)? {
         Some(level) => (level, format!("predictive {target} (simulated on the estimate)")),
         None => (
             plan.levels.last().map_or(1, |l| l.level),
@@ -587,6 +614,8 @@ fn prepare_fresh(
     };
     let record = ScanRecord {
         format: SCAN_FORMAT,
+        gonio_version: crate::VERSION.to_string(),
+        reconstruction: crate::reconstruct::settings(),
         image: f.image.display().to_string(),
         encoder: photo.kind.name().to_string(),
         encoder_outputs: photo.outputs.clone(),
@@ -615,6 +644,7 @@ fn prepare_fresh(
 
 fn prepare_resume(out: &Path, times: &mut PhaseTimes) -> Result<Prepared, ScanError> {
     let record = ScanRecord::read(out)?;
+    record.check_same_build(out)?;
     let instrument = record.instrument(out)?;
     let cal = Calibration::read(&out.join(CALIBRATION_FILE))?;
     let plan_path = out.join(PLAN_FILE);

@@ -7,7 +7,7 @@ use crate::brdf::merl::MerlTable;
 use crate::brdf::rgl::RglBsdf;
 use crate::brdf::{parse_material, Material};
 use crate::journal::Journal;
-use crate::plan::report::{score, Scorer};
+use crate::plan::predict::{score, Scorer};
 use crate::plan::Plan;
 use crate::render::brdf_sampling::BrdfSampler;
 use crate::render::metrics::{compare, Comparison};

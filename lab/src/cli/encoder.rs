@@ -1,16 +1,18 @@
-//! `gonio dataset | train | estimate | encoder-report`.
+//! `gonio-lab dataset | train | encoder-report`.
 
-use super::infer::Encoder;
-use super::report::{self, Photo};
-use super::{dataset, load_photo, preprocess, ModelKind};
+use super::parse_name;
 use anyhow::{bail, Context, Result};
 use clap::Args;
+use gonio::encoder::infer::Encoder;
+use gonio::encoder::ModelKind;
+use gonio_lab::encoder::dataset;
+use gonio_lab::encoder::report::{self, Photo};
 use std::path::{Path, PathBuf};
 
 #[derive(Args)]
 pub struct DatasetArgs {
     /// Which model's parameters to draw and label.
-    #[arg(long, value_enum)]
+    #[arg(long, value_parser = parse_name::<ModelKind>())]
     pub model: ModelKind,
     /// Number of synthetic images (ignored with --merl: one image per bundled material).
     #[arg(long, default_value_t = 100)]
@@ -30,7 +32,7 @@ pub struct DatasetArgs {
 
 #[derive(Args)]
 pub struct TrainArgs {
-    /// Dataset folder (`gonio dataset`); rows with split = test are left out.
+    /// Dataset folder (`gonio-lab dataset`); rows with split = test are left out.
     pub data: PathBuf,
     /// The ONNX file to write (required unless --cv).
     #[arg(short, long)]
@@ -83,21 +85,6 @@ pub struct TrainArgs {
 }
 
 #[derive(Args)]
-pub struct EstimateArgs {
-    /// A photo following examples/capture.toml: PNG (8/16-bit RGB/RGBA) or EXR, any size.
-    pub image: PathBuf,
-    /// Which shipped model to run.
-    #[arg(long, value_enum, default_value = "ggx")]
-    pub model: ModelKind,
-    /// Run this ONNX file instead of a shipped model.
-    #[arg(long)]
-    pub model_file: Option<PathBuf>,
-    /// Print a JSON object: {"model": ..., "<param>": value, ...}.
-    #[arg(long)]
-    pub json: bool,
-}
-
-#[derive(Args)]
 pub struct ReportArgs {
     /// Dataset folder; its `test` rows if it has any, else all rows (see --split).
     pub data: PathBuf,
@@ -106,7 +93,7 @@ pub struct ReportArgs {
     #[arg(long)]
     pub split: Option<String>,
     /// Which shipped model to evaluate.
-    #[arg(long, value_enum, default_value = "ggx")]
+    #[arg(long, value_parser = parse_name::<ModelKind>(), default_value = "ggx")]
     pub model: ModelKind,
     #[arg(long)]
     pub model_file: Option<PathBuf>,
@@ -162,12 +149,12 @@ pub fn load_eval(dir: &Path) -> Result<dataset::Loaded> {
 
 #[cfg(feature = "train")]
 pub fn run_train(args: TrainArgs) -> Result<()> {
-    use super::train;
+    use gonio_lab::encoder::train;
     let data = train::load_train(&args.data)?;
     let init = match &args.init {
         Some(p) => {
             let bytes = std::fs::read(p).with_context(|| format!("{}", p.display()))?;
-            Some(super::onnx::Model::from_onnx(&bytes).with_context(|| format!("{}", p.display()))?)
+            Some(gonio_lab::encoder::onnx::Model::from_onnx(&bytes).with_context(|| format!("{}", p.display()))?)
         }
         None => None,
     };
@@ -232,7 +219,7 @@ pub fn run_train(args: TrainArgs) -> Result<()> {
             println!("{l}");
         }
         if let Some(path) = &args.cv_csv {
-            crate::fsio::write_bytes_atomically(path, train::cv_csv(data.kind, &rows).as_bytes())
+            gonio::fsio::write_bytes_atomically(path, train::cv_csv(data.kind, &rows).as_bytes())
                 .with_context(|| format!("{}", path.display()))?;
             println!("wrote {}", path.display());
         }
@@ -269,12 +256,12 @@ pub fn run_train(args: TrainArgs) -> Result<()> {
         options += &format!(", init {}", p.display());
     }
     let doc = format!(
-        "gonio encoder ({}), trained by `gonio train {}` ({options})",
+        "gonio encoder ({}), trained by `gonio-lab train {}` ({options})",
         data.kind.name(),
         args.data.display(),
     );
     let bytes = model.to_onnx(&doc).map_err(anyhow::Error::msg)?;
-    crate::fsio::write_bytes_atomically(output, &bytes).with_context(|| format!("{}", output.display()))?;
+    gonio::fsio::write_bytes_atomically(output, &bytes).with_context(|| format!("{}", output.display()))?;
     println!(
         "wrote {} ({} bytes); training wall time {:.0} s for {} images ({:.0} img/s)",
         output.display(),
@@ -288,26 +275,7 @@ pub fn run_train(args: TrainArgs) -> Result<()> {
 
 #[cfg(not(feature = "train"))]
 pub fn run_train(_args: TrainArgs) -> Result<()> {
-    bail!("this gonio was built without training: rebuild with `cargo run --release -p gonio --features train -- train ...`")
-}
-
-pub fn run_estimate(args: EstimateArgs) -> Result<()> {
-    let photo = load_photo(&args.image)?;
-    let input = preprocess(&photo).map_err(|e| anyhow::anyhow!("{}: {e}", args.image.display()))?;
-    let encoder = load_encoder(args.model, args.model_file.as_deref())?;
-    let values = encoder.estimate(&input)?;
-    let kind = encoder.kind;
-    if args.json {
-        let mut obj = serde_json::Map::new();
-        obj.insert("model".into(), kind.name().into());
-        for (r, v) in kind.outputs().iter().zip(&values) {
-            obj.insert(r.name.into(), serde_json::json!(v));
-        }
-        println!("{}", serde_json::Value::Object(obj));
-    } else {
-        println!("{}", kind.spec(&values));
-    }
-    Ok(())
+    bail!("this gonio-lab was built without training: rebuild with `cargo run --release -p gonio-lab --features train -- train ...`")
 }
 
 pub fn run_report(args: ReportArgs) -> Result<()> {
@@ -334,7 +302,7 @@ pub fn run_report(args: ReportArgs) -> Result<()> {
         None
     };
     if let Some(path) = &args.csv {
-        crate::fsio::write_bytes_atomically(
+        gonio::fsio::write_bytes_atomically(
             path,
             report::csv(encoder.kind, &rep.rows, observable.as_deref()).as_bytes(),
         )
@@ -342,7 +310,7 @@ pub fn run_report(args: ReportArgs) -> Result<()> {
         println!("wrote {}", path.display());
     }
     if let Some(path) = &args.plot {
-        crate::plot::write_png(&report::chart(encoder.kind, &rep.rows, &args.data), path)
+        gonio_lab::plot::write_png(&report::chart(encoder.kind, &rep.rows, &args.data), path)
             .with_context(|| format!("{}", path.display()))?;
         println!("wrote {}", path.display());
     }

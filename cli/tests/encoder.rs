@@ -1,5 +1,5 @@
 //! The shipped encoder models and `gonio estimate` as a user meets them: committed photos give the
-//! outputs the model card documents (host/tests/data/encoder/expected.csv), bad photos give one
+//! outputs the model card documents (cli/tests/data/encoder/expected.csv), bad photos give one
 //! clear error line and a non-zero exit, never a panic.
 
 use gonio::encoder::infer::Encoder;

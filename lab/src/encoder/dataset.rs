@@ -1,4 +1,4 @@
-//! `gonio dataset`: training and test images rendered from `examples/capture.toml`.
+//! `gonio-lab dataset`: training and test images rendered from `examples/capture.toml`.
 //!
 //! A dataset is a folder of 64 x 64 linear EXR images (rendered at 256 x 256, box-averaged 4 x 4) and
 //! `labels.csv`: `file,split,intensity,<parameters>,spec`. `intensity` is the light-intensity factor
@@ -19,20 +19,17 @@
 //! identifiable because rho_s = 1 - rho_d ties the specular-to-diffuse ratio to it; GGX's diffuse
 //! and specular scales are not (only their ratio), so the GGX network predicts alpha alone.
 
-use super::{preprocess, EncoderError, ModelKind, CAPTURE_TOML, INPUT_LEN, INPUT_SIZE};
-use crate::brdf::fit::{fit, FitModel, FitResult};
-use crate::brdf::fit_lobes::TwoLobes;
-use crate::brdf::spec::Analytic;
-use crate::brdf::{parse_material, Material};
-use crate::render::{render_with, Image, Scene};
+use super::capture::{ggx_fit_alpha, render_capture, render_capture_material};
+use super::{preprocess, EncoderError, ModelKind, INPUT_LEN};
 use glam::DVec3;
+use gonio::brdf::fit_lobes::TwoLobes;
+use gonio::brdf::parse_material;
+use gonio::render::Image;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
-/// Render side before box-averaging to the network input (4 x 4 samples per input pixel).
-pub const RENDER_SIZE: usize = 4 * INPUT_SIZE;
 pub const INTENSITY_RANGE: (f64, f64) = (0.25, 4.0);
 pub const LABELS: &str = "labels.csv";
 /// Every MERL_TEST_EVERY-th bundled material (name order, starting at index MERL_TEST_EVERY - 1) is a test material.
@@ -46,40 +43,6 @@ pub struct Sample {
     pub intensity: f64,
     pub params: Vec<f64>,
     pub spec: String,
-}
-
-/// The capture scene with another material, at `size` x `size`.
-pub fn capture_scene(spec: &str, size: usize) -> Result<Scene, String> {
-    let mut scene = Scene::from_toml(CAPTURE_TOML, Path::new("examples/capture.toml")).map_err(|e| e.to_string())?;
-    let other = Scene::orthographic_sphere(spec, size).map_err(|e| e.to_string())?;
-    scene.material = other.material;
-    scene.sampler = other.sampler;
-    scene.material_spec = other.material_spec;
-    scene.camera.width = size;
-    scene.camera.height = size;
-    Ok(scene)
-}
-
-/// The network-resolution linear photo of `spec` under the capture light times `intensity`.
-pub fn render_capture(spec: &str, intensity: f64) -> Result<Image, String> {
-    render_capture_scene(capture_scene(spec, RENDER_SIZE)?, intensity)
-}
-
-/// `render_capture` of a material that has no spec string (`TwoLobes`).
-pub fn render_capture_material(material: Box<dyn Material>, intensity: f64) -> Result<Image, String> {
-    let mut scene = capture_scene("lambert:albedo=0.5", RENDER_SIZE)?;
-    // A point light evaluates only the material (the BRDF sampler serves environment lighting).
-    scene.material = material;
-    render_capture_scene(scene, intensity)
-}
-
-fn render_capture_scene(scene: Scene, intensity: f64) -> Result<Image, String> {
-    let full = render_with(&scene, &scene.settings, &|| {}).map_err(|e| e.to_string())?;
-    let mut small = super::resample_square(&full, INPUT_SIZE);
-    for p in &mut small.pixels {
-        *p *= intensity;
-    }
-    Ok(small)
 }
 
 fn log_uniform(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
@@ -138,22 +101,9 @@ pub fn sample_two_lobes(rng: &mut ChaCha8Rng) -> TwoLobes {
     }
 }
 
-/// The GGX alpha `brdf::fit` gives a material: the ground truth of MERL and two-lobe images.
-pub fn ggx_fit_alpha(material: &dyn Material) -> Result<f64, String> {
-    ggx_alpha(&fit(material, FitModel::Ggx))
-}
-
-/// The alpha of a GGX fit (`FitModel::Ggx` always gives a GGX model; anything else is an error).
-pub fn ggx_alpha(fit: &FitResult) -> Result<f64, String> {
-    match &fit.model {
-        Analytic::Ggx(g) => Ok(g.alpha),
-        other => Err(format!("the GGX fit gave {other:?}")),
-    }
-}
-
 /// The bundled MERL fits with their GGX alpha and split: (name, alpha, split).
 pub fn merl_materials() -> Result<Vec<(String, f64, &'static str)>, String> {
-    let mut names: Vec<String> = crate::brdf::nbrdf::NeuralBrdf::bundled_names()
+    let mut names: Vec<String> = gonio::brdf::nbrdf::NeuralBrdf::bundled_names()
         .map(str::to_string)
         .collect();
     names.sort();
@@ -298,7 +248,7 @@ fn write_labels(kind: ModelKind, samples: &[Sample], dir: &Path) -> Result<(), E
             s.spec
         );
     }
-    crate::fsio::write_bytes_atomically(&dir.join(LABELS), text.as_bytes()).map_err(|e| EncoderError::dataset(dir, e))
+    gonio::fsio::write_bytes_atomically(&dir.join(LABELS), text.as_bytes()).map_err(|e| EncoderError::dataset(dir, e))
 }
 
 /// A dataset read back: its kind (from the header), labels and preprocessed inputs.

@@ -1,4 +1,4 @@
-//! The accuracy-vs-time report (`gonio plan-report`): for each material, plan with each strategy,
+//! The accuracy-vs-time report (`gonio-lab plan-report`): for each material, plan with each strategy,
 //! measure the ground truth at the planned directions (the virtual scan without effects),
 //! reconstruct every level and score it; compare the stopping rules with the oracle and the
 //! orders' motion times.
@@ -11,22 +11,16 @@
 //! Cost: planning is O(n^2) in the n directions of a level (neighbour lists, spanning tree);
 //! each score is one render (size^2 reconstruction lookups) plus the fixed direction set.
 
+use super::predict::{score, Scorer};
 use super::{estimate_for, Estimate, Plan, PlanConfig, PlanError, Planner, Spacing, Strategy};
-use crate::brdf::fit::fit_directions;
-use crate::brdf::{parse_material, Material};
 use crate::plot::{Chart, Mark, Series};
-use crate::reconstruct::{reconstruct, reconstruct_with, NoPrior};
-use crate::render::brdf_sampling::BrdfSampler;
-use crate::render::metrics::{compare, Comparison};
-use crate::render::{render_plain, Image, Scene};
-use glam::DVec3;
+use gonio::brdf::{parse_material, Material};
+use gonio::reconstruct::{reconstruct, reconstruct_with, NoPrior};
+use gonio::render::Image;
 use gonio_shared::instrument::InstrumentConfig;
 use std::fmt::Write;
 use std::path::Path;
 use std::time::Instant;
-
-/// The capture scene the renders use.
-const CAPTURE_SCENE: &str = include_str!("../../../examples/sphere-point.toml");
 
 /// Default materials: four MERL neural fits (the paper's Table 1 set) and two analytic lobes (a
 /// sharp peak on a diffuse base; a rough lobe).
@@ -64,119 +58,8 @@ impl Default for ReportConfig {
     }
 }
 
-/// Renders a material in the capture scene (point light) and, if given, in an environment-lit
-/// scene; scores BRDF-space error over the fit's direction set.
-pub struct Scorer {
-    scene: Scene,
-    env: Option<Scene>,
-    pairs: Vec<(DVec3, DVec3)>,
-}
-
-impl Scorer {
-    pub fn new(size: usize) -> Result<Self, PlanError> {
-        let mut scene = Scene::from_toml(CAPTURE_SCENE, Path::new("examples/sphere-point.toml"))
-            .map_err(|e| PlanError::Invalid(e.to_string()))?;
-        scene.camera.width = size;
-        scene.camera.height = size;
-        Ok(Self {
-            scene,
-            env: None,
-            pairs: fit_directions(),
-        })
-    }
-
-    /// Also render under `env` (e.g. `examples/sphere-sky.toml`), with its own camera and settings.
-    pub fn with_env(mut self, env: Scene) -> Self {
-        self.env = Some(env);
-        self
-    }
-
-    pub fn render(&mut self, material: Box<dyn Material>) -> Image {
-        self.scene.material = material;
-        render_plain(&self.scene, &self.scene.settings, &|| {})
-    }
-
-    /// The environment render, importance-sampled as `sampler_spec` would be. Give the truth and
-    /// its reconstructions the same `sampler_spec` (and the scene its fixed seed): then every
-    /// render draws the same random numbers and the Monte Carlo noise largely cancels in the
-    /// comparison, leaving the BRDF difference.
-    pub fn render_env(&mut self, material: Box<dyn Material>, sampler_spec: &str) -> Option<Image> {
-        let env = self.env.as_mut()?;
-        env.material = material;
-        env.sampler = BrdfSampler::for_spec(sampler_spec);
-        Some(render_plain(env, &env.settings, &|| {}))
-    }
-
-    /// `brdf_log_err`: `log_err_over` the documented direction set.
-    pub fn log_err(&self, truth: &dyn Material, test: &dyn Material) -> f64 {
-        log_err_over(&self.pairs, truth, test)
-    }
-}
-
-/// Mean over `pairs` of |log(1 + f cos) - log(1 + f_test cos)|, averaged over RGB (Liu et al. 2023);
-/// 0 for no pairs.
-pub fn log_err_over(pairs: &[(DVec3, DVec3)], truth: &dyn Material, test: &dyn Material) -> f64 {
-    let mut sum = 0.0;
-    for &(wi, wo) in pairs {
-        let a = truth.eval(wi, wo) * wo.z;
-        let b = test.eval(wi, wo) * wo.z;
-        for c in 0..3 {
-            sum += (a[c].max(0.0).ln_1p() - b[c].max(0.0).ln_1p()).abs() / 3.0;
-        }
-    }
-    sum / pairs.len().max(1) as f64
-}
-
-/// Render side of the predictive rule's simulated captures.
-pub const PREDICTIVE_SIZE: usize = 128;
-
-/// The predictive stopping rule (no ground truth needed): simulate the scan on the estimate itself
-/// (measure it at the plan's directions, reconstruct each level) and return the first level whose
-/// capture render meets `meets` against the estimate's own render; None if no level does.
-/// `gonio plan` and `gonio scan` both choose their level with it.
-///
-/// The simulation reconstructs without the fitted prior (`NoPrior`), whatever the scan's: an
-/// analytic estimate is exactly what the prior fits, so with it every level would predict a perfect
-/// render and the rule would always stop at the first. Without it the rule predicts the grid's own
-/// error, an upper estimate of the real scan's (which has the prior to help).
-pub fn predictive_level(
-    plan: &Plan,
-    estimate: &Estimate,
-    meets: impl Fn(&Comparison) -> bool,
-) -> Result<Option<usize>, PlanError> {
-    let mut scorer = Scorer::new(PREDICTIVE_SIZE)?;
-    let reference = scorer.render(estimate.material());
-    let values = plan.measure(estimate.material().as_ref());
-    for l in &plan.levels {
-        let image = scorer.render(Box::new(reconstruct_with(plan, l.level, &values, &NoPrior)?));
-        if meets(&score(&reference, &image)?) {
-            return Ok(Some(l.level));
-        }
-    }
-    Ok(None)
-}
-
-/// RMSE and PSNR of the 8-bit sRGB images (exposure 1, clipped, values / 255, peak 1, whole image),
-/// as the paper computed them, and the renderer's mean LDR FLIP.
-pub fn score(reference: &Image, test: &Image) -> Result<Comparison, PlanError> {
-    let (c, _) = compare(reference, test).map_err(|e| PlanError::Invalid(e.to_string()))?;
-    let (a, b) = (reference.to_srgb8(), test.to_srgb8());
-    let sq: f64 = a
-        .iter()
-        .zip(&b)
-        .map(|(&x, &y)| ((x as f64 - y as f64) / 255.0).powi(2))
-        .sum();
-    let rmse = (sq / a.len().max(1) as f64).sqrt();
-    Ok(Comparison {
-        rmse,
-        psnr: crate::render::metrics::psnr(rmse),
-        flip: c.flip,
-    })
-}
-
 /// A PSNR cell of the reports' csv files: identical renders (an exact reconstruction) have PSNR
-/// +inf, which JSON (and so `csv`) would turn into an empty cell; write it as `inf` (what
-/// `f64::from_str` reads back).
+/// +inf; write it as `inf` (what `f64::from_str` reads back).
 pub(super) fn psnr_cell<S: serde::Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
     if *v == f64::INFINITY {
         s.serialize_str("inf")
@@ -318,77 +201,19 @@ pub fn stopping(rows: &[Row], target: f64) -> Option<StopChoice> {
     })
 }
 
-/// CSV with the struct's fields as columns, in declaration order (serde's field order).
+/// CSV with the struct's fields as columns, in declaration order (the csv crate's serde header);
+/// floats in shortest round-trip form, `None` as an empty cell.
 pub(super) fn csv<T: serde::Serialize>(rows: &[T]) -> Result<Vec<u8>, PlanError> {
-    let mut out = String::new();
-    for (n, r) in rows.iter().enumerate() {
-        let v = serde_json::to_value(r).map_err(|e| PlanError::Invalid(e.to_string()))?;
-        let fields = fields_in_order(r)?;
-        if n == 0 {
-            out += &fields.join(",");
-            out.push('\n');
-        }
-        let cells: Vec<String> = fields
-            .iter()
-            .map(|f| match &v[f.as_str()] {
-                serde_json::Value::String(s) if s.contains(',') || s.contains('"') => {
-                    format!("\"{}\"", s.replace('"', "\"\""))
-                }
-                serde_json::Value::String(s) => s.clone(),
-                serde_json::Value::Null => String::new(),
-                other => other.to_string(),
-            })
-            .collect();
-        out += &cells.join(",");
-        out.push('\n');
+    let mut w = ::csv::Writer::from_writer(Vec::new());
+    for r in rows {
+        w.serialize(r).map_err(|e| PlanError::Invalid(e.to_string()))?;
     }
-    Ok(out.into_bytes())
-}
-
-/// Field names in declaration order: serialise through a serializer that records the keys.
-fn fields_in_order<T: serde::Serialize>(r: &T) -> Result<Vec<String>, PlanError> {
-    // serde_json's Value sorts its keys; the JSON text keeps declaration order, so read the keys there.
-    let text = serde_json::to_string(r).map_err(|e| PlanError::Invalid(e.to_string()))?;
-    let mut keys = Vec::new();
-    // Walk the text: every key sits right after '{' or ',' at depth 1 and is followed by ':'.
-    let bytes = text.as_bytes();
-    let (mut depth, mut i, mut in_str, mut expect_key) = (0i32, 0usize, false, false);
-    let mut start = 0usize;
-    while i < bytes.len() {
-        let c = bytes[i];
-        if in_str {
-            if c == b'\\' {
-                i += 1;
-            } else if c == b'"' {
-                in_str = false;
-                if expect_key && depth == 1 {
-                    keys.push(text[start..i].to_string());
-                    expect_key = false;
-                }
-            }
-        } else {
-            match c {
-                b'"' => {
-                    in_str = true;
-                    start = i + 1;
-                }
-                b'{' | b'[' => {
-                    depth += 1;
-                    expect_key = c == b'{' && depth == 1;
-                }
-                b'}' | b']' => depth -= 1,
-                b',' if depth == 1 => expect_key = true,
-                _ => {}
-            }
-        }
-        i += 1;
-    }
-    Ok(keys)
+    w.into_inner().map_err(|e| PlanError::Invalid(e.to_string()))
 }
 
 pub(super) fn write(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), PlanError> {
     let path = dir.join(name);
-    crate::fsio::write_bytes_atomically(&path, bytes)
+    gonio::fsio::write_bytes_atomically(&path, bytes)
         .map_err(|e| PlanError::Invalid(format!("{}: {e}", path.display())))
 }
 
@@ -460,7 +285,7 @@ fn markdown(cfg: &ReportConfig, rows: &[Row], stops: &[StopChoice]) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "# Planner: accuracy vs time\n\nRegenerate: `gonio plan-report -o DIR --max-grid {} --incoming {} --size {}{}`.\n\
+        "# Planner: accuracy vs time\n\nRegenerate: `gonio-lab plan-report -o DIR --max-grid {} --incoming {} --size {}{}`.\n\
          Strategies compared with {} incoming spacing.\n\
          Ground truth: the material itself (MERL materials: their neural fits). Estimate: analytic materials are their own \
          estimate; MERL materials get the GGX fit (`gonio brdf fit`), standing in for the encoder. Scores: capture scene \
@@ -583,7 +408,7 @@ fn charts(dir: &Path, cfg: &ReportConfig, rows: &[Row]) -> Result<(), PlanError>
             }
             out.push(crate::plot::draw_rgb(&c).map_err(|e| PlanError::Invalid(e.to_string()))?);
         }
-        Ok(super::tradeoff::tile(&out, w as usize, h as usize, 3))
+        Ok(crate::plot::tile(&out, w as usize, h as usize, 3))
     };
     let mut ord = Chart::new("Motion time per plan", "directions", "motion minutes");
     ord.x_log = true;
@@ -599,9 +424,50 @@ fn charts(dir: &Path, cfg: &ReportConfig, rows: &[Row]) -> Result<(), PlanError>
     let log = panels(|r| r.brdf_log_err, "brdf_log_err")?;
     for ((w, h, rgb), name) in [(flip, "plan-flip.png"), (log, "plan-logerr.png")] {
         let path = dir.join(name);
-        crate::render::image::write_rgb8_png(&path, w, h, rgb)
+        gonio::render::image::write_rgb8_png(&path, w, h, rgb)
             .map_err(|e| PlanError::Invalid(format!("{}: {e}", path.display())))?;
     }
     crate::plot::write_png(&ord, &dir.join("plan-order.png")).map_err(|e| PlanError::Invalid(e.to_string()))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::csv;
+
+    #[derive(serde::Serialize)]
+    struct R {
+        name: String,
+        n: usize,
+        x: f64,
+        #[serde(serialize_with = "super::psnr_cell")]
+        psnr: f64,
+        paper: Option<f64>,
+    }
+
+    #[test]
+    fn csv_rows_keep_field_order_shortest_floats_quotes_and_empty_options() {
+        let rows = [
+            R {
+                name: "ggx:alpha=0.1,diffuse=0.2".into(),
+                n: 3,
+                x: 0.1 + 0.2,
+                psnr: f64::INFINITY,
+                paper: None,
+            },
+            R {
+                name: "say \"hi\"".into(),
+                n: 0,
+                x: 1.0,
+                psnr: 41.25,
+                paper: Some(1e-7),
+            },
+        ];
+        let text = String::from_utf8(csv(&rows).expect("csv")).expect("utf-8");
+        assert_eq!(
+            text,
+            "name,n,x,psnr,paper\n\"ggx:alpha=0.1,diffuse=0.2\",3,0.30000000000000004,inf,\n\"say \"\"hi\"\"\",0,1.0,41.25,1e-7\n"
+        );
+        assert!(csv::<R>(&[]).expect("csv").is_empty());
+    }
 }

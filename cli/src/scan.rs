@@ -1,11 +1,13 @@
-//! `gonio scan`, `gonio calibrate` and `gonio capture`: argument handling over [`super::run`] and
-//! [`super::calibration`].
+//! `gonio scan`, `gonio calibrate` and `gonio capture`: argument handling over `gonio::scan::run`
+//! and `gonio::scan::calibration`.
 
-use super::calibration::{self, Calibration};
-use super::{FreshScan, LevelRule, ScanRequest, Start};
-use crate::encoder::ModelKind;
-use crate::link::{self, run_options, TerminalProgress};
+use crate::names::parse_name;
+use crate::progress::{print_run, TerminalProgress};
 use anyhow::{bail, Context, Result};
+use gonio::encoder::ModelKind;
+use gonio::link::{self, run_options};
+use gonio::scan::calibration::{self, Calibration};
+use gonio::scan::{FreshScan, LevelRule, ScanRequest, Start};
 use std::io::BufRead;
 use std::path::PathBuf;
 
@@ -21,7 +23,7 @@ pub struct ScanArgs {
     #[arg(long)]
     pub sim: Option<PathBuf>,
     #[command(flatten)]
-    pub level: crate::plan::cli::LevelArgs,
+    pub level: crate::plan::LevelArgs,
     /// Deepest grid the target and budget rules consider.
     #[arg(long, default_value_t = 16)]
     pub max_grid: usize,
@@ -43,7 +45,7 @@ pub struct ScanArgs {
     #[arg(long, value_name = "OUTDIR", conflicts_with_all = ["image", "sim", "grid", "target_psnr", "target_flip", "time_budget", "instrument", "calibration"])]
     pub resume: Option<PathBuf>,
     /// Which shipped encoder estimates the material.
-    #[arg(long, value_enum, default_value_t = ModelKind::Ggx)]
+    #[arg(long, value_parser = parse_name::<ModelKind>(), default_value_t = ModelKind::Ggx)]
     pub model: ModelKind,
     /// With --sim: instrument seconds per wall second while the device is busy (default 100; with
     /// --resume, the scan's own unless given).
@@ -113,7 +115,7 @@ pub fn run_scan(a: ScanArgs) -> Result<()> {
                 port: a.port.clone(),
                 sim: a.sim.clone(),
                 seed: a.seed,
-                speedup: a.speedup.unwrap_or(crate::sim::DEFAULT_SPEEDUP),
+                speedup: a.speedup.unwrap_or(gonio::sim::DEFAULT_SPEEDUP),
                 render_size: a.render_size,
                 env_spp: a.env_spp,
             };
@@ -128,12 +130,12 @@ pub fn run_scan(a: ScanArgs) -> Result<()> {
         faults: a.inject_faults,
     };
     let mut progress = TerminalProgress::new(0);
-    let result = super::run(&request, &mut progress, &mut |line| println!("{line}"));
+    let result = gonio::scan::run(&request, &mut progress, &mut |line| println!("{line}"));
     progress.finish();
     let outcome = result?;
     let r = &outcome.record;
     let t = &outcome.times;
-    link::print_run(&outcome.measured);
+    print_run(&outcome.measured);
     println!(
         "scan: {} directions (level {}, {}x{} x {} incoming; {}), estimate {}",
         r.directions,
@@ -184,7 +186,7 @@ pub struct CalibrateArgs {
     pub reference: String,
     #[arg(short = 'o', long = "out")]
     pub out: PathBuf,
-    #[arg(long, default_value_t = crate::sim::DEFAULT_SPEEDUP)]
+    #[arg(long, default_value_t = gonio::sim::DEFAULT_SPEEDUP)]
     pub speedup: f64,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -193,7 +195,7 @@ pub struct CalibrateArgs {
 }
 
 pub fn run_calibrate(a: CalibrateArgs) -> Result<()> {
-    let cfg = crate::instrument::load_or_default(a.instrument.as_deref())?;
+    let cfg = gonio::instrument::load_or_default(a.instrument.as_deref())?;
     gonio_shared::kinematics::Kinematics::new(cfg).map_err(|e| anyhow::anyhow!("instrument: {e}"))?;
     calibration::reference_albedo(&a.reference)?;
     let options = run_options(a.hello_timeout, 0.0);
@@ -201,8 +203,8 @@ pub fn run_calibrate(a: CalibrateArgs) -> Result<()> {
         (Some(scene), _) => {
             let text = std::fs::read_to_string(scene).with_context(|| format!("scene {}", scene.display()))?;
             // Refuse a bad scene (material, detector, effects) before any simulation starts.
-            crate::sim::model::SimModel::from_toml(&text, scene, cfg, a.seed)?;
-            super::calibrate_sim(&text, scene, cfg, a.seed, a.speedup, &a.reference, &options)?
+            gonio::sim::model::SimModel::from_toml(&text, scene, cfg, a.seed)?;
+            gonio::scan::calibrate_sim(&text, scene, cfg, a.seed, a.speedup, &a.reference, &options)?
         }
         (None, Some(port)) => {
             let directions = calibration::directions();
@@ -223,7 +225,7 @@ pub fn run_calibrate(a: CalibrateArgs) -> Result<()> {
         }
         (None, None) => bail!("give --port PATH or --sim SCENE"),
     };
-    crate::fsio::write_bytes_atomically(&a.out, cal.to_toml().as_bytes())
+    gonio::fsio::write_bytes_atomically(&a.out, cal.to_toml().as_bytes())
         .with_context(|| format!("cannot write {}", a.out.display()))?;
     print_calibration(&cal);
     println!("wrote {}", a.out.display());
@@ -257,19 +259,13 @@ pub struct CaptureArgs {
     pub size: usize,
 }
 
-/// The capture photo of `spec` at `size` pixels.
-pub fn capture_photo(spec: &str, size: usize) -> Result<crate::render::Image> {
-    if !(16..=4096).contains(&size) {
-        bail!("--size {size} must be in 16..=4096");
-    }
-    let scene = crate::encoder::dataset::capture_scene(spec, size).map_err(anyhow::Error::msg)?;
-    Ok(crate::render::render_with(&scene, &scene.settings, &|| {})?)
-}
-
 pub fn run_capture(a: CaptureArgs) -> Result<()> {
-    crate::render::image::ImageFormat::from_path(&a.out)?;
-    let model = crate::sim::model::SimModel::load(&a.scene, crate::instrument::default_instrument(), 0)?;
-    let image = capture_photo(&model.material_spec, a.size)?;
+    gonio::render::image::ImageFormat::from_path(&a.out)?;
+    if !(16..=4096).contains(&a.size) {
+        bail!("--size {} must be in 16..=4096", a.size);
+    }
+    let model = gonio::sim::model::SimModel::load(&a.scene, gonio::instrument::default_instrument(), 0)?;
+    let image = gonio::encoder::capture::capture_photo(&model.material_spec, a.size).map_err(anyhow::Error::msg)?;
     image.write(&a.out)?;
     println!(
         "captured {} ({}x{}, examples/capture.toml) -> {}",

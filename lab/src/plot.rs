@@ -3,7 +3,7 @@
 //!
 //! One small description ([`Chart`]) in, one PNG out, through plotters' bitmap backend drawing into a
 //! memory buffer that the project's own PNG writer saves atomically. The font (DejaVu Sans,
-//! `host/assets/fonts`, Bitstream Vera licence) is compiled in, so charts look the same on every
+//! `lab/assets/fonts`, Bitstream Vera licence) is compiled in, so charts look the same on every
 //! machine and the build needs no system font packages.
 
 use plotters::prelude::*;
@@ -85,7 +85,7 @@ pub enum PlotError {
     #[error("chart '{title}': {message}")]
     Draw { title: String, message: String },
     #[error(transparent)]
-    Write(#[from] crate::render::RenderError),
+    Write(#[from] gonio::render::RenderError),
 }
 
 const FONT_FAMILY: &str = "sans-serif";
@@ -168,7 +168,7 @@ fn drawable(series: &Series, x_log: bool, y_log: bool) -> Vec<(f64, f64)> {
 /// Draw `chart` and write it to `path` (PNG) through a temporary name.
 pub fn write_png(chart: &Chart, path: &Path) -> Result<(), PlotError> {
     let rgb = draw_rgb(chart)?;
-    crate::render::image::write_rgb8_png(path, chart.width as usize, chart.height as usize, rgb)?;
+    gonio::render::image::write_rgb8_png(path, chart.width as usize, chart.height as usize, rgb)?;
     Ok(())
 }
 
@@ -288,6 +288,22 @@ pub fn draw_rgb(chart: &Chart) -> Result<Vec<u8>, PlotError> {
         root.present().map_err(|e| draw_err(&e))?;
     }
     Ok(buffer)
+}
+
+/// Panels side by side into one RGB image (`cols` per row, all panels the same size).
+pub fn tile(panels: &[Vec<u8>], w: usize, h: usize, cols: usize) -> (usize, usize, Vec<u8>) {
+    let rows = panels.len().div_ceil(cols.max(1));
+    let (tw, th) = (w * cols, h * rows);
+    let mut out = vec![255u8; tw * th * 3];
+    for (p, panel) in panels.iter().enumerate() {
+        let (px, py) = ((p % cols) * w, (p / cols) * h);
+        for y in 0..h {
+            let src = &panel[y * w * 3..(y + 1) * w * 3];
+            let at = ((py + y) * tw + px) * 3;
+            out[at..at + w * 3].copy_from_slice(src);
+        }
+    }
+    (tw, th, out)
 }
 
 #[cfg(test)]

@@ -1,4 +1,4 @@
-//! The trade-off report (`gonio tradeoff`): what each level of accuracy costs in measurement time,
+//! The trade-off report (`gonio-lab tradeoff`): what each level of accuracy costs in measurement time,
 //! per material and strategy, and the paper's Table 1.
 //!
 //! For each material: plan every strategy at the same nested levels, measure the ground truth at the
@@ -15,16 +15,17 @@
 //! grids, hence the same count: see the planner's nudge rule; its reconstruction reads the same
 //! photo estimate as `adaptive`'s).
 
-use super::report::{csv, score, short, write, Scorer, PLOT_FLOOR};
+use super::predict::{score, Scorer};
+use super::report::{csv, short, write, PLOT_FLOOR};
 use super::{estimate_for, trials, Estimate, PlanConfig, PlanError, Planner, Spacing, Strategy};
-use crate::brdf::parse_material;
-use crate::encoder::dataset::capture_scene;
-use crate::encoder::infer::Encoder;
-use crate::encoder::ModelKind;
-use crate::plot::{Chart, Mark, Series};
-use crate::reconstruct::{reconstruct_with, Prior, TwoLobesPrior};
-use crate::render::render_with;
-use crate::render::{Image, Scene};
+use crate::plot::{tile, Chart, Mark, Series};
+use gonio::brdf::parse_material;
+use gonio::encoder::capture::capture_scene;
+use gonio::encoder::infer::Encoder;
+use gonio::encoder::ModelKind;
+use gonio::reconstruct::{reconstruct_with, Prior, TwoLobesPrior};
+use gonio::render::render_with;
+use gonio::render::{Image, Scene};
 use gonio_shared::instrument::InstrumentConfig;
 use std::fmt::{self, Write};
 use std::path::Path;
@@ -395,7 +396,7 @@ pub fn run(
         let truth = parse_material(spec)?;
         let t0 = Instant::now();
         let true_estimate = estimate_for(spec)?;
-        let fit_seconds = if crate::brdf::spec::parse_analytic(spec).is_ok() {
+        let fit_seconds = if gonio::brdf::spec::parse_analytic(spec).is_ok() {
             0.0
         } else {
             t0.elapsed().as_secs_f64()
@@ -509,7 +510,7 @@ pub fn run(
     let table = csv(&rows)?;
     // Every output is computed before the first write; each is written atomically.
     let png = dir.join("tradeoff.png");
-    crate::render::image::write_rgb8_png(&png, tw, th, rgb)
+    gonio::render::image::write_rgb8_png(&png, tw, th, rgb)
         .map_err(|e| PlanError::Invalid(format!("{}: {e}", png.display())))?;
     write(dir, "tradeoff.csv", &table)?;
     write(dir, "tradeoff.md", md.as_bytes())?;
@@ -519,7 +520,7 @@ pub fn run(
     }
     for (name, rgb, w, h) in sheets {
         let path = dir.join(&name);
-        crate::render::image::write_rgb8_png(&path, w, h, rgb)
+        gonio::render::image::write_rgb8_png(&path, w, h, rgb)
             .map_err(|e| PlanError::Invalid(format!("{}: {e}", path.display())))?;
     }
     Ok(md)
@@ -581,7 +582,7 @@ pub fn render_sheet(truth: &Image, truth_env: &Image, rows: &[Vec<Image>]) -> (u
 
 /// The command that regenerates this run.
 fn command(cfg: &TradeoffConfig) -> String {
-    let mut c = "gonio tradeoff".to_string();
+    let mut c = "gonio-lab tradeoff".to_string();
     match cfg.preset {
         Some(p) => {
             let _ = write!(c, " --preset {p}");
@@ -900,22 +901,6 @@ fn geometric_means(s: &mut String, cfg: &TradeoffConfig, rows: &[TradeRow]) {
     }
 }
 
-/// Panels side by side into one RGB image (`cols` per row, all panels the same size).
-pub(super) fn tile(panels: &[Vec<u8>], w: usize, h: usize, cols: usize) -> (usize, usize, Vec<u8>) {
-    let rows = panels.len().div_ceil(cols.max(1));
-    let (tw, th) = (w * cols, h * rows);
-    let mut out = vec![255u8; tw * th * 3];
-    for (p, panel) in panels.iter().enumerate() {
-        let (px, py) = ((p % cols) * w, (p / cols) * h);
-        for y in 0..h {
-            let src = &panel[y * w * 3..(y + 1) * w * 3];
-            let at = ((py + y) * tw + px) * 3;
-            out[at..at + w * 3].copy_from_slice(src);
-        }
-    }
-    (tw, th, out)
-}
-
 fn chart_rgb(cfg: &TradeoffConfig, rows: &[TradeRow]) -> Result<(usize, usize, Vec<u8>), PlanError> {
     let (w, h) = (520u32, 360u32);
     type Metric = (&'static str, fn(&TradeRow) -> f64);
@@ -949,7 +934,7 @@ fn chart_rgb(cfg: &TradeoffConfig, rows: &[TradeRow]) -> Result<(usize, usize, V
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::instrument::default_instrument;
+    use gonio::instrument::default_instrument;
 
     const REQUIRED: [&str; 15] = [
         "material",

@@ -1,11 +1,11 @@
 //! `gonio render`, `gonio compare` and `gonio envmap`: thin clap layers over the library.
 
-use super::effects::EffectPipeline;
-use super::image::{Image, ImageFormat};
-use super::metrics::compare;
-use super::scene::{check_settings, Scene};
-use super::sky::{sky, SkyParams};
 use anyhow::{Context, Result};
+use gonio::render::effects::EffectPipeline;
+use gonio::render::image::{Image, ImageFormat};
+use gonio::render::metrics::compare;
+use gonio::render::scene::{check_settings, Scene};
+use gonio::render::sky::{sky, SkyParams};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -79,7 +79,7 @@ pub fn run_render(args: RenderArgs) -> Result<()> {
         bar.set_style(style);
     }
     let start = Instant::now();
-    let image = super::render_with(&scene, &settings, &|| bar.inc(1))?;
+    let image = gonio::render::render_with(&scene, &settings, &|| bar.inc(1))?;
     let seconds = start.elapsed().as_secs_f64();
     bar.finish_and_clear();
     image.write(&args.output)?;

@@ -1,12 +1,12 @@
 //! Where a reconstruction's point-light FLIP comes from: the trade-off report's point-light render
-//! (`examples/sphere-point.toml` at 128 px, the `point` columns of `gonio tradeoff`) split into bands
+//! (`examples/sphere-point.toml` at 128 px, the `point` columns of `gonio-lab tradeoff`) split into bands
 //! of the half-vector angle theta_h of each sphere pixel, for the `auto` plan (from the photo
-//! estimate, as `gonio tradeoff`'s `adaptive`) and the uniform grid at one level. Per band it prints
+//! estimate, as `gonio-lab tradeoff`'s `adaptive`) and the uniform grid at one level. Per band it prints
 //! the band's share of the mean FLIP (the shares sum to the mean), the mean luminance of the truth
 //! and of the reconstruction, and their ratio per channel; then the profile of f cos theta_i along the plane of the light and the
 //! camera (truth, each reconstruction, and its fitted prior without the residual grid).
 //!
-//!     cargo run --release -p gonio --example flip_bands [LEVEL] [--maps DIR] [MATERIAL ...]
+//!     cargo run --release -p gonio-lab --example flip_bands [LEVEL] [--maps DIR] [MATERIAL ...]
 //!
 //! LEVEL 1 is the 2x2 level (default); materials default to two held-out metallic paints. With
 //! `--maps DIR` the FLIP maps and the renders (sRGB) are written there as PNGs. Used in
@@ -18,15 +18,15 @@ use gonio::brdf::frame::luminance;
 use gonio::brdf::{parse_material, Material};
 use gonio::encoder::infer::Encoder;
 use gonio::encoder::ModelKind;
-use gonio::plan::report::Scorer;
-use gonio::plan::tradeoff::{capture_photo, photo_estimate};
+use gonio::plan::predict::Scorer;
 use gonio::plan::{PlanConfig, Planner, Strategy};
 use gonio::reconstruct::FittedPrior;
 use gonio::render::scene::{DeltaLight, Scene};
+use gonio_lab::plan::tradeoff::{capture_photo, photo_estimate};
 
 /// Band edges in theta_h (degrees); the last band holds pixels facing away from the half vector.
 const EDGES: [f64; 11] = [0.0, 2.0, 4.0, 7.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0, 180.0];
-/// Side of the point-light render, as `gonio tradeoff`'s default `--size`.
+/// Side of the point-light render, as `gonio-lab tradeoff`'s default `--size`.
 const SIZE: usize = 128;
 
 /// The fitted prior alone, as a material.

@@ -1,11 +1,11 @@
-//! `gonio brdf ...`: evaluate, tabulate and fit materials given as spec strings (see `spec`).
+//! `gonio brdf ...`: evaluate, tabulate and fit materials given as spec strings (see `gonio::brdf::spec`).
 //! Degrees at this edge, radians inside.
 
-use super::fit::{fit, FitModel};
-use super::frame::from_spherical;
-use super::merl::MerlTable;
-use super::parse_material;
 use anyhow::{Context, Result};
+use gonio::brdf::fit::{fit, FitModel};
+use gonio::brdf::frame::from_spherical;
+use gonio::brdf::merl::{MerlTable, FILE_BYTES};
+use gonio::brdf::parse_material;
 use std::path::PathBuf;
 
 #[derive(clap::Subcommand, Debug)]
@@ -106,7 +106,7 @@ pub fn run(cmd: BrdfCmd) -> Result<()> {
             let m = parse_material(&material)?;
             let table = MerlTable::tabulate(m.as_ref());
             table.write(&output).with_context(|| format!("tabulating {material}"))?;
-            println!("wrote {} ({} bytes)", output.display(), super::merl::FILE_BYTES);
+            println!("wrote {} ({} bytes)", output.display(), FILE_BYTES);
             Ok(())
         }
         BrdfCmd::Fit {
@@ -122,7 +122,7 @@ pub fn run(cmd: BrdfCmd) -> Result<()> {
             let r = match directions {
                 FitDirections::Hemisphere => fit(m.as_ref(), model),
                 FitDirections::Capture => {
-                    crate::encoder::observable::observable_fit(m.as_ref(), model).map_err(anyhow::Error::msg)?
+                    gonio::encoder::observable::observable_fit(m.as_ref(), model).map_err(anyhow::Error::msg)?
                 }
             };
             println!("{}", r.model.to_spec());
@@ -183,7 +183,7 @@ mod tests {
         .expect("tabulate");
         assert_eq!(
             std::fs::metadata(&out).map(|m| m.len()).ok(),
-            Some(super::super::merl::FILE_BYTES as u64)
+            Some(super::FILE_BYTES as u64)
         );
         // Only the output remains: the temporary file was renamed.
         assert_eq!(std::fs::read_dir(dir.path()).map(|d| d.count()).ok(), Some(1));

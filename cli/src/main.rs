@@ -1,21 +1,30 @@
-//! `gonio`: the host tool of the gonio adaptive gonioreflectometer.
+//! `gonio`: the command line of the gonio adaptive gonioreflectometer, a thin clap layer over the
+//! `gonio` library. The research commands (tradeoff, plan-report, dataset, train, encoder-report)
+//! are `gonio-lab`'s.
 
 use anyhow::{Context, Result};
+use brdf::{parse_direction, BrdfCmd, Direction};
 use clap::{Parser, Subcommand};
-use gonio::brdf::cli::{parse_direction, BrdfCmd, Direction};
 use gonio::instrument::{self, survey};
-use gonio::render::cli::{CompareArgs, EnvmapCmd, RenderArgs};
 use gonio_shared::kinematics::Kinematics;
 use gonio_shared::{Axis, AXES};
+use render::{CompareArgs, EnvmapCmd, RenderArgs};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-mod measure_cli;
+mod brdf;
+mod estimate;
+mod measure;
+mod names;
+mod plan;
+mod progress;
+mod render;
+mod scan;
 
 #[derive(Parser)]
 #[command(
     name = "gonio",
-    version,
+    version = gonio::VERSION,
     about = "Adaptive BRDF measurement with a motorised gonioreflectometer"
 )]
 struct Cli {
@@ -41,29 +50,19 @@ enum Command {
     #[command(subcommand)]
     Envmap(EnvmapCmd),
     /// Plan a measurement: ordered, timed, encoded directions for an estimated material.
-    Plan(gonio::plan::cli::PlanArgs),
-    /// Accuracy vs time: strategies, levels, stopping rules, spacings and orders on a set of materials.
-    PlanReport(gonio::plan::cli::PlanReportArgs),
-    /// Accuracy vs measurement time per strategy and level (adaptive, adaptive-true, specular, uniform); --preset table1.
-    Tradeoff(gonio::plan::cli::TradeoffArgs),
+    Plan(plan::PlanArgs),
     /// Run the virtual gonio (real firmware, simulated HAL) on a pseudo-terminal; prints its path.
-    Sim(measure_cli::SimArgs),
+    Sim(measure::SimArgs),
     /// Stream a plan file to a gonio (or the virtual one), journal and collect the measurements.
-    Measure(measure_cli::MeasureArgs),
+    Measure(measure::MeasureArgs),
     /// Photo -> estimate -> plan -> measure -> reconstruct -> exports, renders and report, in one go.
-    Scan(gonio::scan::cli::ScanArgs),
+    Scan(scan::ScanArgs),
     /// Fit the counts -> BRDF conversion from a dark reading and a white reference.
-    Calibrate(gonio::scan::cli::CalibrateArgs),
+    Calibrate(scan::CalibrateArgs),
     /// Render the capture photo (examples/capture.toml) of a scan scene's sample.
-    Capture(gonio::scan::cli::CaptureArgs),
-    /// Render an encoder dataset (examples/capture.toml with random or MERL materials).
-    Dataset(gonio::encoder::cli::DatasetArgs),
-    /// Train an encoder on a dataset and write ONNX (needs `--features train`).
-    Train(gonio::encoder::cli::TrainArgs),
+    Capture(scan::CaptureArgs),
     /// Estimate BRDF parameters from one photo of the sample (examples/capture.toml).
-    Estimate(gonio::encoder::cli::EstimateArgs),
-    /// An encoder's accuracy on a dataset's test images, across light intensities.
-    EncoderReport(gonio::encoder::cli::ReportArgs),
+    Estimate(estimate::EstimateArgs),
 }
 
 #[derive(Subcommand)]
@@ -106,23 +105,18 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Brdf(cmd) => gonio::brdf::cli::run(cmd),
+        Command::Brdf(cmd) => brdf::run(cmd),
         Command::Instrument(cmd) => run_instrument(cmd),
-        Command::Render(args) => gonio::render::cli::run_render(args),
-        Command::Compare(args) => gonio::render::cli::run_compare(args),
-        Command::Envmap(cmd) => gonio::render::cli::run_envmap(cmd),
-        Command::Plan(args) => gonio::plan::cli::run_plan(args),
-        Command::PlanReport(args) => gonio::plan::cli::run_plan_report(args),
-        Command::Tradeoff(args) => gonio::plan::cli::run_tradeoff(args),
-        Command::Sim(args) => measure_cli::run_sim(args),
-        Command::Measure(args) => measure_cli::run_measure(args),
-        Command::Scan(args) => gonio::scan::cli::run_scan(args),
-        Command::Calibrate(args) => gonio::scan::cli::run_calibrate(args),
-        Command::Capture(args) => gonio::scan::cli::run_capture(args),
-        Command::Dataset(args) => gonio::encoder::cli::run_dataset(args),
-        Command::Train(args) => gonio::encoder::cli::run_train(args),
-        Command::Estimate(args) => gonio::encoder::cli::run_estimate(args),
-        Command::EncoderReport(args) => gonio::encoder::cli::run_report(args),
+        Command::Render(args) => render::run_render(args),
+        Command::Compare(args) => render::run_compare(args),
+        Command::Envmap(cmd) => render::run_envmap(cmd),
+        Command::Plan(args) => plan::run_plan(args),
+        Command::Sim(args) => measure::run_sim(args),
+        Command::Measure(args) => measure::run_measure(args),
+        Command::Scan(args) => scan::run_scan(args),
+        Command::Calibrate(args) => scan::run_calibrate(args),
+        Command::Capture(args) => scan::run_capture(args),
+        Command::Estimate(args) => estimate::run_estimate(args),
         Command::Protocol => {
             use gonio_shared::frame::{MAX_PAYLOAD, MAX_WIRE_FRAME};
             use gonio_shared::msg::{caps, PROTOCOL_VERSION, SCHEMA_HASH};

@@ -197,6 +197,62 @@ fn a_killed_scan_resumes_to_identical_outputs_and_a_corrupt_plan_is_refused() {
     assert_eq!(listing(&killed), files);
 }
 
+/// Every file of `dir` with its bytes, sorted by name.
+fn contents(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| {
+            let e = e.unwrap();
+            (e.file_name().into_string().unwrap(), std::fs::read(e.path()).unwrap())
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn a_resume_by_another_build_or_reconstruction_is_refused_in_one_line() {
+    let fx = fixture("");
+    let out = fx.path("out");
+    scan_ok(&fx, &out, &["--speedup", "10000"]);
+    let record = out.join("scan.toml");
+    let original = std::fs::read_to_string(&record).unwrap();
+    let line = |key: &str| {
+        original
+            .lines()
+            .find(|l| l.starts_with(&format!("{key} = ")))
+            .unwrap_or_else(|| panic!("scan.toml has no {key}"))
+            .to_string()
+    };
+    let (version, settings) = (line("gonio_version"), line("reconstruction"));
+    assert!(version.contains(env!("CARGO_PKG_VERSION")), "{version}");
+    assert!(settings.contains("prior"), "{settings}");
+    for (from, to, named) in [
+        (&version, "gonio_version = \"0.0.0-other\"", "0.0.0-other"),
+        (
+            &settings,
+            "reconstruction = \"lookup slice, interp linear, prior none\"",
+            "prior none",
+        ),
+    ] {
+        std::fs::write(&record, original.replace(from.as_str(), to)).unwrap();
+        let before = contents(&out);
+        let o = run(&["scan", "--resume", s(&out), "--speedup", "10000"]);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "a resume with {named} went on");
+        assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+        assert!(
+            stderr.contains(named) && stderr.contains("the build that made it"),
+            "{stderr}"
+        );
+        assert!(contents(&out) == before, "a refused resume wrote to {}", out.display());
+    }
+    // The untouched record resumes (the finished scan's outputs are written again).
+    std::fs::write(&record, &original).unwrap();
+    let o = run(&["scan", "--resume", s(&out), "--speedup", "10000"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
 #[test]
 fn a_limit_fault_mid_scan_stops_it_with_the_pose_and_keeps_the_journal() {
     let clean = fixture("");
@@ -384,7 +440,7 @@ fn calibrated_readings_of_a_known_material_match_its_brdf() {
 #[test]
 fn the_shipped_sample_photo_equals_a_fresh_capture() {
     let model = SimModel::load(Path::new(SCENE_FILE), gonio::instrument::default_instrument(), 0).unwrap();
-    let fresh = gonio::scan::cli::capture_photo(&model.material_spec, 256)
+    let fresh = gonio::encoder::capture::capture_photo(&model.material_spec, 256)
         .unwrap()
         .to_srgb8();
     let shipped = image::ImageReader::open(PathBuf::from(SAMPLE))

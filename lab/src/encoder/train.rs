@@ -541,7 +541,7 @@ pub const CV_PNG_LIGHTS: [f64; 3] = [0.5, 1.0, 2.0];
 
 /// K-fold cross-validation over the training rows of `data`: row i (in dataset order) is in fold
 /// i mod `folds`; each fold (or only `only`) is trained on the other folds with `train_model` and
-/// its rows predicted through the exported ONNX file, as `gonio encoder-report` would.
+/// its rows predicted through the exported ONNX file, as `gonio-lab encoder-report` would.
 pub fn cross_validate(
     data: &Loaded,
     recipe: &Recipe,

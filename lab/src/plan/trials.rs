@@ -1,10 +1,10 @@
-//! Trial priors of `gonio tradeoff --prior`: each lost to the product's two-lobes
+//! Trial priors of `gonio-lab tradeoff --prior`: each lost to the product's two-lobes
 //! (docs/tradeoff/README.md). One file, one `reconstruct::Prior` each; not used by a scan.
 
-use super::photo_samples::{self, PhotoSamples};
-use crate::brdf::fit::{fit_samples, FitModel};
-use crate::brdf::fit_lobes::{fit_two_lobes_bounded, DiffuseBound, LobeFresnel};
-use crate::reconstruct::{FittedPrior, LevelSamples, NoPrior, Prior, TwoLobesPrior};
+use gonio::plan::photo_samples::{self, PhotoSamples};
+use gonio::brdf::fit::{fit_samples, FitModel};
+use gonio::brdf::fit_lobes::{fit_two_lobes_bounded, DiffuseBound, LobeFresnel};
+use gonio::reconstruct::{FittedPrior, LevelSamples, NoPrior, Prior, TwoLobesPrior};
 
 /// The names `--prior` takes: the product's first.
 pub const PRIOR_NAMES: [&str; 6] = [
@@ -140,13 +140,13 @@ impl Prior for PhotoTwoLobesPrior {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::brdf::analytic::Ggx;
-    use crate::brdf::frame::from_spherical;
-    use crate::brdf::Material;
-    use crate::instrument::default_instrument;
-    use crate::plan::report::log_err_over;
-    use crate::plan::{ggx_estimate, Plan, PlanConfig, Planner, Strategy};
-    use crate::reconstruct::reconstruct_with;
+    use gonio::brdf::analytic::Ggx;
+    use gonio::brdf::frame::from_spherical;
+    use gonio::brdf::Material;
+    use gonio::instrument::default_instrument;
+    use gonio::plan::predict::log_err_over;
+    use gonio::plan::{ggx_estimate, Plan, PlanConfig, Planner, Strategy};
+    use gonio::reconstruct::reconstruct_with;
     use glam::DVec3;
     use rand::{Rng, SeedableRng};
 
@@ -155,7 +155,7 @@ mod tests {
             .expect("planner")
             .plan(&PlanConfig {
                 strategy: Strategy::Mixture,
-                grids: crate::plan::square_grids(max_level),
+                grids: gonio::plan::square_grids(max_level),
                 ..PlanConfig::default()
             })
             .expect("plan")
@@ -219,7 +219,7 @@ mod tests {
     /// a mirror-like metal's mixture plan, where the free fit's is under it too (docs/tradeoff/README.md).
     #[test]
     fn the_capped_prior_keeps_lambert_under_the_darkest_sample() {
-        let truth = crate::brdf::spec::parse_material("nbrdf:tungsten-carbide").expect("bundled material");
+        let truth = gonio::brdf::spec::parse_material("nbrdf:tungsten-carbide").expect("bundled material");
         let plan = mixture_plan(0.0076, 0.02, 4);
         let values = plan.measure(truth.as_ref());
         let level1 = plan.levels[0].cumulative_directions;
@@ -249,11 +249,11 @@ mod tests {
     #[test]
     fn the_photo_prior_fits_the_photos_slice() {
         let spec = "nbrdf:red-metallic-paint";
-        let truth = crate::brdf::spec::parse_material(spec).expect("bundled material");
+        let truth = gonio::brdf::spec::parse_material(spec).expect("bundled material");
         let plan = mixture_plan(0.013, 0.05, 4);
         let values = plan.measure(truth.as_ref());
-        let scene = crate::encoder::dataset::capture_scene(spec, 128).expect("capture scene");
-        let photo = crate::render::render_with(&scene, &scene.settings, &|| {}).expect("render");
+        let scene = gonio::encoder::capture::capture_scene(spec, 128).expect("capture scene");
+        let photo = gonio::render::render_with(&scene, &scene.settings, &|| {}).expect("render");
         let samples = photo_samples::photo_samples(&scene, &photo, None, 2).expect("photo samples");
         let plain = reconstruct_with(&plan, 1, &values, &TwoLobesPrior).expect("rec");
         let photo_prior = PhotoTwoLobesPrior { photo: samples.clone() };

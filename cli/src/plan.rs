@@ -1,11 +1,10 @@
-//! `gonio plan` and `gonio plan-report`: argument handling and output files. Every output is
-//! written atomically and only after the plan has passed its re-simulation check.
+//! `gonio plan`: argument handling and output files. Every output is written atomically and only
+//! after the plan has passed its re-simulation check.
 
-use super::report::{self, ReportConfig};
-use super::tradeoff;
-use super::{estimate_for, Plan, PlanConfig, PlanError, Planner, Spacing, Strategy, MAX_LEVEL};
-use crate::encoder::ModelKind;
+use crate::names::parse_name;
 use anyhow::{bail, Context, Result};
+use gonio::encoder::ModelKind;
+use gonio::plan::{estimate_for, predict, Plan, PlanConfig, PlanError, Planner, Spacing, Strategy, MAX_LEVEL};
 use gonio_shared::instrument::AXES;
 use std::path::PathBuf;
 
@@ -36,7 +35,7 @@ pub struct PlanArgs {
     #[arg(value_name = "IMAGE")]
     pub photo: Option<PathBuf>,
     /// The encoder model for IMAGE.
-    #[arg(long, value_enum, default_value_t = ModelKind::Ggx, requires = "photo")]
+    #[arg(long, value_parser = parse_name::<ModelKind>(), default_value_t = ModelKind::Ggx, requires = "photo")]
     pub model: ModelKind,
     /// The estimated material as an analytic spec (e.g. "ggx:alpha=0.1,diffuse=0.2"); other specs
     /// (nbrdf:, merl:, rgl:) are fitted with GGX first.
@@ -50,9 +49,9 @@ pub struct PlanArgs {
     /// Deepest level the target and budget modes consider (a power of two).
     #[arg(long, default_value_t = 16)]
     pub max_grid: usize,
-    #[arg(long, value_enum, default_value_t = Strategy::Auto)]
+    #[arg(long, value_parser = parse_name::<Strategy>(), default_value_t = Strategy::Auto)]
     pub strategy: Strategy,
-    #[arg(long, value_enum, default_value_t = Spacing::Angle)]
+    #[arg(long, value_parser = parse_name::<Spacing>(), default_value_t = Spacing::Angle)]
     pub spacing: Spacing,
     /// Number of incoming elevations.
     #[arg(long, default_value_t = 8)]
@@ -65,108 +64,19 @@ pub struct PlanArgs {
     pub json: Option<PathBuf>,
 }
 
-#[derive(clap::Args)]
-pub struct PlanReportArgs {
-    /// Material specs (repeatable); default: four MERL fits and two analytic lobes.
-    #[arg(long = "material")]
-    pub materials: Vec<String>,
-    #[arg(long)]
-    pub instrument: Option<PathBuf>,
-    /// Finest grid (power of two). 16 takes minutes on 2 cores; 32 costs ~4x the planning per level.
-    #[arg(long, default_value_t = 16)]
-    pub max_grid: usize,
-    #[arg(long, default_value_t = 8)]
-    pub incoming: usize,
-    /// Render side in pixels.
-    #[arg(long, default_value_t = 128)]
-    pub size: usize,
-    #[arg(short, long)]
-    pub output: PathBuf,
-}
-
-#[derive(clap::Args)]
-pub struct TradeoffArgs {
-    /// Material specs (repeatable); default: four MERL fits and two analytic lobes.
-    #[arg(long = "material", value_name = "SPEC")]
-    pub materials: Vec<String>,
-    /// A named run: table1 (the paper's Table 1), heldout (the encoder's 15 held-out MERL materials),
-    /// training (14 MERL materials the encoder trained on, where the planner's constants are chosen)
-    /// or training-pool (26 further training materials, mostly sharp: metals, phenolics, paints).
-    #[arg(long, value_enum, conflicts_with = "materials")]
-    pub preset: Option<tradeoff::Preset>,
-    #[arg(long)]
-    pub instrument: Option<PathBuf>,
-    /// Nested levels, N x M outgoing per incoming theta, each dividing the next: e.g. 2x2,4x4,8x4,8x8.
-    /// Default 2x2,4x4,8x8,16x16 (table1: 2x2,4x4,8x4,8x8).
-    #[arg(long, value_parser = tradeoff::parse_grids)]
-    pub levels: Option<tradeoff::Grids>,
-    /// Strategies (repeatable); default all four.
-    #[arg(long = "strategy", value_enum)]
-    pub strategies: Vec<tradeoff::TradeStrategy>,
-    #[arg(long, default_value_t = 8)]
-    pub incoming: usize,
-    /// What the reconstruction interpolates on top of: Lambert plus two GGX lobes with a bounded
-    /// Fresnel rise fitted to each level's own measurements (two-lobes), the same without the rise
-    /// (two-lobes-plain), two-lobes with the Lambert term under the darkest measurement
-    /// (two-lobes-capped, a trial: docs/tradeoff/README.md), two-lobes fitted to the capture photo's
-    /// pixels too (two-lobes-photo, a trial: the photo shares the point-light score's light), one
-    /// lobe (fit), or nothing (none). The same for every strategy.
-    #[arg(
-        long,
-        default_value = super::trials::PRIOR_NAMES[0],
-        value_parser = clap::builder::PossibleValuesParser::new(super::trials::PRIOR_NAMES)
-    )]
-    pub prior: String,
-    /// Point-light render side in pixels (default 128; table1: 256).
-    #[arg(long)]
-    pub size: Option<usize>,
-    /// Environment-lit scene (its environment map is read relative to it).
-    #[arg(long, default_value = "examples/sphere-sky.toml")]
-    pub env_scene: PathBuf,
-    /// Environment render side in pixels.
-    #[arg(long, default_value_t = 256)]
-    pub env_size: usize,
-    /// Environment samples per pixel.
-    #[arg(long, default_value_t = 64)]
-    pub env_spp: u32,
-    /// Also write DIR/renders/MATERIAL.png per material: the truth's renders on the first row, then one
-    /// row per strategy with each level's point-light render, then each level's environment render
-    /// (MATERIAL is the spec as a file name; a second spec with the same name gets MATERIAL-2).
-    #[arg(long)]
-    pub renders: bool,
-    #[arg(short, long)]
-    pub output: PathBuf,
-}
-
-/// Seconds from "90", "90s", "15m", "2h", "1h30m", "1.5h".
+/// Seconds from "90" (plain seconds) or a humantime duration: "90s", "15m", "2h", "1h30m".
 pub fn parse_duration(s: &str) -> Result<f64, String> {
-    let bad = || format!("'{s}' is not a duration (e.g. 90s, 15m, 2h, 1h30m)");
-    let mut total = 0.0;
-    let mut num = String::new();
-    let mut any = false;
-    for c in s.trim().chars() {
-        if c.is_ascii_digit() || c == '.' {
-            num.push(c);
-            continue;
-        }
-        let unit = match c {
-            's' => 1.0,
-            'm' => 60.0,
-            'h' => 3600.0,
-            _ => return Err(bad()),
-        };
-        total += num.parse::<f64>().map_err(|_| bad())? * unit;
-        num.clear();
-        any = true;
+    let s = s.trim();
+    let seconds = match s.parse::<f64>() {
+        Ok(v) => v,
+        Err(_) => humantime::parse_duration(s)
+            .map_err(|e| format!("'{s}' is not a duration (e.g. 90s, 15m, 2h, 1h30m): {e}"))?
+            .as_secs_f64(),
+    };
+    if !(seconds.is_finite() && seconds > 0.0) {
+        return Err(format!("'{s}' is not a positive duration (e.g. 90s, 15m, 2h, 1h30m)"));
     }
-    if !num.is_empty() {
-        total += num.parse::<f64>().map_err(|_| bad())?;
-        any = true;
-    }
-    if !any || !total.is_finite() || total <= 0.0 {
-        return Err(bad());
-    }
-    Ok(total)
+    Ok(seconds)
 }
 
 fn level_of(n: usize, what: &str) -> Result<usize> {
@@ -177,12 +87,12 @@ fn level_of(n: usize, what: &str) -> Result<usize> {
 }
 
 pub fn run_plan(args: PlanArgs) -> Result<()> {
-    let instrument = crate::instrument::load_or_default(args.instrument.as_deref())?;
+    let instrument = gonio::instrument::load_or_default(args.instrument.as_deref())?;
     let t_estimate = std::time::Instant::now();
     let estimate = match (&args.photo, &args.material_model) {
         (Some(photo), _) => {
             // The photo error names the file already.
-            let e = super::photo::estimate_from_photo(photo, args.model)?;
+            let e = gonio::plan::photo::estimate_from_photo(photo, args.model)?;
             println!(
                 "estimate from {} ({} model): {} in {:.2} s",
                 photo.display(),
@@ -216,7 +126,7 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
         strategy: args.strategy,
         spacing: args.spacing,
         k: args.incoming,
-        grids: super::square_grids(max_level),
+        grids: gonio::plan::square_grids(max_level),
     };
     let planner = Planner::new(instrument, estimate.clone())?;
     let t0 = std::time::Instant::now();
@@ -230,7 +140,7 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
         })?;
         (l, format!("time budget {budget:.0} s"))
     } else if args.level.target_psnr.is_some() || args.level.target_flip.is_some() {
-        let chosen = report::predictive_level(&plan, &estimate, |c| {
+        let chosen = predict::predictive_level(&plan, &estimate, |c| {
             args.level.target_psnr.is_none_or(|t| c.psnr >= t) && args.level.target_flip.is_none_or(|t| c.flip <= t)
         })?;
         match chosen {
@@ -249,7 +159,7 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
     let plan = plan.truncate(level);
     let plan_seconds = t0.elapsed().as_secs_f64();
     let wire = plan.wire();
-    let bytes = super::file::encode_plan(&wire)?;
+    let bytes = gonio::plan::file::encode_plan(&wire)?;
     let replay = plan.check_encoded(&instrument, &bytes)?;
     let summary = plan.summary();
     // Everything is computed before the first write, so a failure leaves no output behind.
@@ -257,9 +167,9 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
         Some(_) => Some(plan_json(&plan, &estimate.model.to_spec(), &rule, replay)?),
         None => None,
     };
-    super::file::write_plan_file(&args.output, &wire)?;
+    gonio::plan::file::write_plan_file(&args.output, &wire)?;
     if let (Some(path), Some(json)) = (&args.json, json) {
-        crate::fsio::write_bytes_atomically(path, json.as_bytes())
+        gonio::fsio::write_bytes_atomically(path, json.as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;
     }
     let l = plan.levels.last().context("empty plan")?;
@@ -333,89 +243,6 @@ fn plan_json(plan: &Plan, estimate: &str, rule: &str, replay_motion: f64) -> Res
     serde_json::to_string_pretty(&v).map_err(|e| PlanError::Invalid(e.to_string()))
 }
 
-pub fn run_plan_report(args: PlanReportArgs) -> Result<()> {
-    let instrument = crate::instrument::load_or_default(args.instrument.as_deref())?;
-    let max_level = level_of(args.max_grid, "--max-grid")?;
-    if !(16..=1024).contains(&args.size) {
-        bail!("--size {} must be in 16..=1024", args.size);
-    }
-    let mut cfg = ReportConfig {
-        max_level,
-        k: args.incoming,
-        size: args.size,
-        ..ReportConfig::default()
-    };
-    if !args.materials.is_empty() {
-        cfg.materials = args.materials;
-    }
-    let bar = indicatif::ProgressBar::new((cfg.materials.len() * 4) as u64);
-    with_progress(bar, |progress| report::run(&cfg, &instrument, &args.output, progress))
-}
-
-/// Run a report with `bar` ticking once per line it reports (each printed above the bar), then
-/// print the report's markdown.
-fn with_progress(
-    bar: indicatif::ProgressBar,
-    run: impl FnOnce(&dyn Fn(&str)) -> Result<String, super::PlanError>,
-) -> Result<()> {
-    let md = run(&|line| {
-        bar.println(line);
-        bar.inc(1);
-    })?;
-    bar.finish_and_clear();
-    print!("{md}");
-    Ok(())
-}
-
-pub fn run_tradeoff(args: TradeoffArgs) -> Result<()> {
-    let instrument = crate::instrument::load_or_default(args.instrument.as_deref())?;
-    let mut cfg = match args.preset {
-        Some(p) => tradeoff::TradeoffConfig::preset(p),
-        None => tradeoff::TradeoffConfig::default(),
-    };
-    if !args.materials.is_empty() {
-        cfg.materials = args.materials;
-    }
-    if let Some(levels) = args.levels {
-        cfg.grids = levels.0;
-    }
-    if !args.strategies.is_empty() {
-        cfg.strategies = args.strategies;
-        cfg.strategies.dedup();
-    }
-    cfg.k = args.incoming;
-    cfg.prior = args.prior;
-    if let Some(size) = args.size {
-        cfg.size = size;
-    }
-    cfg.env_size = args.env_size;
-    cfg.env_spp = args.env_spp;
-    cfg.renders = args.renders;
-    for (name, v) in [("--size", cfg.size), ("--env-size", cfg.env_size)] {
-        if !(16..=1024).contains(&v) {
-            bail!("{name} {v} must be in 16..=1024");
-        }
-    }
-    if !(1..=4096).contains(&cfg.env_spp) {
-        bail!("--env-spp {} must be in 1..=4096", cfg.env_spp);
-    }
-    let env = crate::render::Scene::load(&args.env_scene).with_context(|| "--env-scene".to_string())?;
-    if env.environment.is_none() {
-        bail!(
-            "--env-scene {}: the scene has no environment light",
-            args.env_scene.display()
-        );
-    }
-    let steps = cfg.materials.len() * cfg.strategies.len() * cfg.grids.len();
-    let bar = indicatif::ProgressBar::new(steps as u64).with_style(
-        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} levels scored, {elapsed} (eta {eta})")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    with_progress(bar, |progress| {
-        tradeoff::run(&cfg, &instrument, env, &args.output, progress)
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::parse_duration;
@@ -430,5 +257,7 @@ mod tests {
         assert!(parse_duration("5x").is_err());
         assert!(parse_duration("0s").is_err());
         assert!(parse_duration("m").is_err());
+        assert!(parse_duration("-5").is_err());
+        assert_eq!(parse_duration("2h 5s"), Ok(7205.0));
     }
 }

@@ -1,11 +1,11 @@
-//! `gonio encoder-report`: a model's accuracy on a dataset's test images, its error across light
+//! `gonio-lab encoder-report`: a model's accuracy on a dataset's test images, its error across light
 //! intensities, and the per-image predictions (CSV) behind the predicted-vs-true plot.
 
 use super::dataset::Loaded;
 use super::infer::Encoder;
 use super::{preprocess, EncoderError, INPUT_LEN};
-use crate::render::image::{srgb_to_linear, tone_map};
-use crate::render::Image;
+use gonio::render::image::{srgb_to_linear, tone_map};
+use gonio::render::Image;
 
 /// Light-intensity factors of the sweep: the x0.25 .. x4, with factors that are not powers of
 /// two (multiplying by a power of two is exact in floating point and would test nothing).
@@ -178,7 +178,7 @@ pub fn observable_alphas(rows: &[(String, String, Vec<f64>, Vec<f64>)]) -> Resul
     use rayon::prelude::*;
     rows.par_iter()
         .map(|(file, spec, _, _)| {
-            let material = crate::brdf::spec::parse_material(spec)
+            let material = gonio::brdf::spec::parse_material(spec)
                 .map_err(|e| EncoderError::Model(format!("{file}: material {spec}: {e}")))?;
             super::observable::observable_alpha(material.as_ref())
                 .map_err(|e| EncoderError::Model(format!("{file}: {e}")))

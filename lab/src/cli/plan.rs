@@ -1,0 +1,172 @@
+//! `gonio-lab plan-report` and `gonio-lab tradeoff`: argument handling over
+//! `gonio_lab::plan::{report, tradeoff}`.
+
+use super::parse_name;
+use anyhow::{bail, Context, Result};
+use gonio::plan::{PlanError, MAX_LEVEL};
+use gonio_lab::plan::report::{self, ReportConfig};
+use gonio_lab::plan::{trials, tradeoff};
+use std::path::PathBuf;
+
+fn level_of(n: usize, what: &str) -> Result<usize> {
+    if n < 2 || !n.is_power_of_two() || n.trailing_zeros() as usize > MAX_LEVEL {
+        bail!("{what} {n} must be a power of two from 2 to {}", 1usize << MAX_LEVEL);
+    }
+    Ok(n.trailing_zeros() as usize)
+}
+
+#[derive(clap::Args)]
+pub struct PlanReportArgs {
+    /// Material specs (repeatable); default: four MERL fits and two analytic lobes.
+    #[arg(long = "material")]
+    pub materials: Vec<String>,
+    #[arg(long)]
+    pub instrument: Option<PathBuf>,
+    /// Finest grid (power of two). 16 takes minutes on 2 cores; 32 costs ~4x the planning per level.
+    #[arg(long, default_value_t = 16)]
+    pub max_grid: usize,
+    #[arg(long, default_value_t = 8)]
+    pub incoming: usize,
+    /// Render side in pixels.
+    #[arg(long, default_value_t = 128)]
+    pub size: usize,
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+#[derive(clap::Args)]
+pub struct TradeoffArgs {
+    /// Material specs (repeatable); default: four MERL fits and two analytic lobes.
+    #[arg(long = "material", value_name = "SPEC")]
+    pub materials: Vec<String>,
+    /// A named run: table1 (the paper's Table 1), heldout (the encoder's 15 held-out MERL materials),
+    /// training (14 MERL materials the encoder trained on, where the planner's constants are chosen)
+    /// or training-pool (26 further training materials, mostly sharp: metals, phenolics, paints).
+    #[arg(long, value_enum, conflicts_with = "materials")]
+    pub preset: Option<tradeoff::Preset>,
+    #[arg(long)]
+    pub instrument: Option<PathBuf>,
+    /// Nested levels, N x M outgoing per incoming theta, each dividing the next: e.g. 2x2,4x4,8x4,8x8.
+    /// Default 2x2,4x4,8x8,16x16 (table1: 2x2,4x4,8x4,8x8).
+    #[arg(long, value_parser = tradeoff::parse_grids)]
+    pub levels: Option<tradeoff::Grids>,
+    /// Strategies (repeatable); default all four.
+    #[arg(long = "strategy", value_enum)]
+    pub strategies: Vec<tradeoff::TradeStrategy>,
+    #[arg(long, default_value_t = 8)]
+    pub incoming: usize,
+    /// What the reconstruction interpolates on top of: Lambert plus two GGX lobes with a bounded
+    /// Fresnel rise fitted to each level's own measurements (two-lobes), the same without the rise
+    /// (two-lobes-plain), two-lobes with the Lambert term under the darkest measurement
+    /// (two-lobes-capped, a trial: docs/tradeoff/README.md), two-lobes fitted to the capture photo's
+    /// pixels too (two-lobes-photo, a trial: the photo shares the point-light score's light), one
+    /// lobe (fit), or nothing (none). The same for every strategy.
+    #[arg(
+        long,
+        default_value = trials::PRIOR_NAMES[0],
+        value_parser = clap::builder::PossibleValuesParser::new(trials::PRIOR_NAMES)
+    )]
+    pub prior: String,
+    /// Point-light render side in pixels (default 128; table1: 256).
+    #[arg(long)]
+    pub size: Option<usize>,
+    /// Environment-lit scene (its environment map is read relative to it).
+    #[arg(long, default_value = "examples/sphere-sky.toml")]
+    pub env_scene: PathBuf,
+    /// Environment render side in pixels.
+    #[arg(long, default_value_t = 256)]
+    pub env_size: usize,
+    /// Environment samples per pixel.
+    #[arg(long, default_value_t = 64)]
+    pub env_spp: u32,
+    /// Also write DIR/renders/MATERIAL.png per material: the truth's renders on the first row, then one
+    /// row per strategy with each level's point-light render, then each level's environment render
+    /// (MATERIAL is the spec as a file name; a second spec with the same name gets MATERIAL-2).
+    #[arg(long)]
+    pub renders: bool,
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+pub fn run_plan_report(args: PlanReportArgs) -> Result<()> {
+    let instrument = gonio::instrument::load_or_default(args.instrument.as_deref())?;
+    let max_level = level_of(args.max_grid, "--max-grid")?;
+    if !(16..=1024).contains(&args.size) {
+        bail!("--size {} must be in 16..=1024", args.size);
+    }
+    let mut cfg = ReportConfig {
+        max_level,
+        k: args.incoming,
+        size: args.size,
+        ..ReportConfig::default()
+    };
+    if !args.materials.is_empty() {
+        cfg.materials = args.materials;
+    }
+    let bar = indicatif::ProgressBar::new((cfg.materials.len() * 4) as u64);
+    with_progress(bar, |progress| report::run(&cfg, &instrument, &args.output, progress))
+}
+
+/// Run a report with `bar` ticking once per line it reports (each printed above the bar), then
+/// print the report's markdown.
+fn with_progress(
+    bar: indicatif::ProgressBar,
+    run: impl FnOnce(&dyn Fn(&str)) -> Result<String, PlanError>,
+) -> Result<()> {
+    let md = run(&|line| {
+        bar.println(line);
+        bar.inc(1);
+    })?;
+    bar.finish_and_clear();
+    print!("{md}");
+    Ok(())
+}
+
+pub fn run_tradeoff(args: TradeoffArgs) -> Result<()> {
+    let instrument = gonio::instrument::load_or_default(args.instrument.as_deref())?;
+    let mut cfg = match args.preset {
+        Some(p) => tradeoff::TradeoffConfig::preset(p),
+        None => tradeoff::TradeoffConfig::default(),
+    };
+    if !args.materials.is_empty() {
+        cfg.materials = args.materials;
+    }
+    if let Some(levels) = args.levels {
+        cfg.grids = levels.0;
+    }
+    if !args.strategies.is_empty() {
+        cfg.strategies = args.strategies;
+        cfg.strategies.dedup();
+    }
+    cfg.k = args.incoming;
+    cfg.prior = args.prior;
+    if let Some(size) = args.size {
+        cfg.size = size;
+    }
+    cfg.env_size = args.env_size;
+    cfg.env_spp = args.env_spp;
+    cfg.renders = args.renders;
+    for (name, v) in [("--size", cfg.size), ("--env-size", cfg.env_size)] {
+        if !(16..=1024).contains(&v) {
+            bail!("{name} {v} must be in 16..=1024");
+        }
+    }
+    if !(1..=4096).contains(&cfg.env_spp) {
+        bail!("--env-spp {} must be in 1..=4096", cfg.env_spp);
+    }
+    let env = gonio::render::Scene::load(&args.env_scene).with_context(|| "--env-scene".to_string())?;
+    if env.environment.is_none() {
+        bail!(
+            "--env-scene {}: the scene has no environment light",
+            args.env_scene.display()
+        );
+    }
+    let steps = cfg.materials.len() * cfg.strategies.len() * cfg.grids.len();
+    let bar = indicatif::ProgressBar::new(steps as u64).with_style(
+        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} levels scored, {elapsed} (eta {eta})")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    with_progress(bar, |progress| {
+        tradeoff::run(&cfg, &instrument, env, &args.output, progress)
+    })
+}
