@@ -14,6 +14,6 @@ pub const MEASUREMENT_CAPACITY: usize = 128;
 pub const OUTBOX_BYTES: usize = 2048;
 
 /// Timed STEP/DIR events between the controller loop and the step timer interrupt. The loop keeps
-/// [`crate::timed::LOOKAHEAD_US`] (2 ms) queued: at 4 axes x 20 kHz that is 160 steps, plus DIR
-/// events at move starts and one poll's worth of headroom ([`crate::timed::EVENTS_PER_POLL`]).
+/// `timed::LOOKAHEAD_US` (2 ms) queued: at 4 axes x 20 kHz that is 160 steps, plus DIR
+/// events at move starts and one poll's worth of headroom (`timed::EVENTS_PER_POLL`).
 pub const STEP_QUEUE_EVENTS: usize = 256;

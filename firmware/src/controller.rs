@@ -453,7 +453,7 @@ impl Controller {
         Ok(())
     }
 
-    /// The link dropped [`crate::link::BAD_FRAME_FAULT_RUN`] frames in a row: the host cannot be
+    /// The link dropped `link::BAD_FRAME_FAULT_RUN` frames in a row: the host cannot be
     /// heard (it could not even stop us), so nothing new starts; a move in progress finishes its
     /// deceleration. Cleared by `Abort` or `Home` once frames get through again.
     pub fn link_untrusted(&mut self) {

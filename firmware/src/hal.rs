@@ -2,7 +2,7 @@
 //!
 //! Synchronous and small (embedded-hal style): the step generator decides *when* to step from
 //! [`Clock::now_us`], the board only carries it out. [`Hal`] is all four, what the controller needs.
-//! On the board [`crate::timed::QueuedHal`] provides [`Clock`] and [`Steppers`] itself (a schedule
+//! On the board `timed::QueuedHal` provides [`Clock`] and [`Steppers`] itself (a schedule
 //! clock and queued step events) over a board that only has the clock, switches and detector;
 //! host tests implement all four with a mock that records every call with its timestamp.
 

@@ -342,7 +342,7 @@ impl StepQueue {
 
     /// The controller loop takes the latched trip (bit per axis) and resumes playback. Events
     /// queued since the trip are kept: the loop flushes them if the trip halted the move they
-    /// belong to (see [`crate::timed`]).
+    /// belong to (see `timed::QueuedHal`).
     pub fn take_trip(&mut self) -> u8 {
         core::mem::take(&mut self.tripped)
     }

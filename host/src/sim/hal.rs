@@ -1,14 +1,18 @@
-//! The simulated board behind the real firmware: a clock the runner advances, motors whose outputs
-//! go through the backlash dead band, home switches where the instrument has them, and a detector
-//! that reads the scene's material at the pose the outputs actually reached.
+//! The simulated board behind the real firmware, driven through the board's own step path: the
+//! controller runs ahead of real time in [`QueuedHal`] and its STEP/DIR events are played back from
+//! the [`StepQueue`] as the STM32's timer interrupt plays them. The board has a clock the runner
+//! advances, motors whose outputs go through the backlash dead band, home switches (a closing one
+//! raises the EXTI trip) and a detector that reads the scene's material at the pose the outputs reached.
 //!
-//! Kept in one file so that a change of the firmware's `Hal` trait is adapted here only.
+//! Kept in one file so that a change of the firmware's HAL traits is adapted here only.
 
 use super::model::SimModel;
-use gonio_firmware::{Hal, Readout};
+use gonio_firmware::step_queue::{Pins, StepQueue};
+use gonio_firmware::timed::{tick, QueuedHal, SharedQueue};
+use gonio_firmware::{Clock, Detector, Readout, Switches};
 use gonio_shared::instrument::{HomeSide, AXES, AXIS_COUNT};
 use gonio_shared::Axis;
-use std::cell::Cell;
+use std::cell::{Cell, RefCell};
 use std::sync::Arc;
 
 #[derive(Clone, Copy, Debug)]
@@ -36,7 +40,43 @@ impl Switch {
     }
 }
 
-pub struct SimHal {
+/// The virtual gonio's HAL: the board's step path over the simulated board.
+pub type SimHal = QueuedHal<SimBoard, RefCell<StepQueue>>;
+
+/// A fresh board (every motor at step 0) behind an empty step queue.
+pub fn sim_hal(model: Arc<SimModel>) -> SimHal {
+    QueuedHal::new(SimBoard::new(model), RefCell::new(StepQueue::new()))
+}
+
+/// When the step timer interrupt next fires, as board time; `None` while the queue is idle.
+pub fn timer_wake(hal: &SimHal) -> Option<u64> {
+    let now = hal.board.now_us;
+    let wake = hal.queue.with(|q| q.next_wake(tick(now)))?;
+    let ahead = wake.wrapping_sub(tick(now));
+    // A wake-up "behind" the counter is one already due.
+    Some(if ahead >= 1 << 31 {
+        now
+    } else {
+        now.saturating_add(u64::from(ahead))
+    })
+}
+
+/// The step timer interrupt at the board's time: play what is due, and raise the EXTI trip for
+/// every switch that the played steps closed.
+pub fn service_timer(hal: &mut SimHal) {
+    let now = tick(hal.board.now_us);
+    let (pins, _) = hal.queue.with(|q| q.service(now));
+    let closed = hal.board.apply(pins);
+    if closed != 0 {
+        let latched = hal.queue.with(|q| {
+            q.trip(closed, now);
+            q.tripped()
+        });
+        hal.board.fault_seen(latched);
+    }
+}
+
+pub struct SimBoard {
     model: Arc<SimModel>,
     /// Instrument time, microseconds since power-on.
     pub now_us: u64,
@@ -45,18 +85,21 @@ pub struct SimHal {
     /// Axis output positions, steps (differs from `motor` by the backlash dead band).
     output: [f64; AXIS_COUNT],
     backlash: [f64; AXIS_COUNT],
+    /// DIR levels as last played.
     dir: [bool; AXIS_COUNT],
     switches: [Switch; AXIS_COUNT],
     exposure: Option<(u64, Readout)>,
     pub readings: u64,
+    /// STEP edges played (steps dropped by a limit trip never happened).
     pub steps_taken: u64,
     /// The test hook's switch: armed after its reading count, closed from the next step until
-    /// the firmware has seen it once (a `Cell` because looking at a switch is `&self`).
+    /// the firmware has seen it once, by the trip or by reading its level (a `Cell` because
+    /// reading a switch is `&self`).
     fault_closed: Cell<Option<Axis>>,
     fault_fired: bool,
 }
 
-impl SimHal {
+impl SimBoard {
     pub fn new(model: Arc<SimModel>) -> Self {
         let cfg32 = model.instrument.cast::<f32>();
         let kin = model.kinematics();
@@ -93,35 +136,40 @@ impl SimHal {
         }
     }
 
-    pub fn motor_steps(&self) -> [i64; AXIS_COUNT] {
-        self.motor
-    }
-
-    pub fn output_steps(&self) -> [f64; AXIS_COUNT] {
-        self.output
-    }
-
-    /// The noise key of a reading: a hash of the motor positions (same pose, same noise).
-    fn reading_key(&self) -> u64 {
-        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-        for p in self.motor {
-            for b in p.to_le_bytes() {
-                h ^= u64::from(b);
-                h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    /// Apply the pin changes of one timer interrupt (DIR first: the queue never changes DIR and
+    /// raises STEP of one axis at the same instant). Returns the switches the steps closed (bit per axis).
+    fn apply(&mut self, pins: Pins) -> u8 {
+        let mut closed = 0u8;
+        for axis in AXES {
+            let bit = 1u8 << axis.index();
+            if let Some(d) = self.dir.get_mut(axis.index()) {
+                if pins.dir_increasing & bit != 0 {
+                    *d = true;
+                } else if pins.dir_decreasing & bit != 0 {
+                    *d = false;
+                }
             }
         }
-        h
+        for axis in AXES {
+            let bit = 1u8 << axis.index();
+            if pins.step_high & bit != 0 {
+                let was = self.limit_closed_now(axis);
+                self.step(axis);
+                if !was && self.limit_closed_now(axis) {
+                    closed |= bit;
+                }
+                if let Some(fault) = self.fault_closed.get() {
+                    closed |= 1 << fault.index();
+                }
+            }
+        }
+        closed
     }
-}
 
-impl Hal for SimHal {
-    fn now_us(&self) -> u64 {
-        self.now_us
-    }
-
-    fn set_direction(&mut self, axis: Axis, increasing: bool) {
-        if let Some(d) = self.dir.get_mut(axis.index()) {
-            *d = increasing;
+    /// The trip latched these switches: the firmware has seen the test hook's closing.
+    fn fault_seen(&self, latched: u8) {
+        if self.fault_closed.get().is_some_and(|a| latched & (1 << a.index()) != 0) {
+            self.fault_closed.set(None);
         }
     }
 
@@ -148,11 +196,8 @@ impl Hal for SimHal {
         }
     }
 
-    fn limit_closed(&self, axis: Axis) -> bool {
-        if self.fault_closed.get() == Some(axis) {
-            self.fault_closed.set(None);
-            return true;
-        }
+    /// The switch's level from the motor position alone (not the test hook).
+    fn limit_closed_now(&self, axis: Axis) -> bool {
         let i = axis.index();
         match (self.switches.get(i), self.motor.get(i)) {
             (Some(s), Some(&p)) => s.closed(p),
@@ -160,6 +205,36 @@ impl Hal for SimHal {
         }
     }
 
+    /// The noise key of a reading: a hash of the motor positions (same pose, same noise).
+    fn reading_key(&self) -> u64 {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        for p in self.motor {
+            for b in p.to_le_bytes() {
+                h ^= u64::from(b);
+                h = h.wrapping_mul(0x0000_0100_0000_01b3);
+            }
+        }
+        h
+    }
+}
+
+impl Clock for SimBoard {
+    fn now_us(&self) -> u64 {
+        self.now_us
+    }
+}
+
+impl Switches for SimBoard {
+    fn limit_closed(&self, axis: Axis) -> bool {
+        if self.fault_closed.get() == Some(axis) {
+            self.fault_closed.set(None);
+            return true;
+        }
+        self.limit_closed_now(axis)
+    }
+}
+
+impl Detector for SimBoard {
     fn start_exposure(&mut self, exposure_us: u32) {
         let pose = self.model.pose_at(&self.output);
         let counts = self
@@ -196,37 +271,50 @@ mod tests {
         Arc::new(SimModel::from_toml(&text, Path::new("t.toml"), crate::instrument::default_instrument(), 0).unwrap())
     }
 
-    fn steps(hal: &mut SimHal, axis: Axis, n: i64) {
-        hal.set_direction(axis, n > 0);
+    /// `n` steps of `axis` as the timer interrupt would play them.
+    fn steps(board: &mut SimBoard, axis: Axis, n: i64) -> u8 {
+        let bit = 1u8 << axis.index();
+        let dir = if n > 0 {
+            Pins {
+                dir_increasing: bit,
+                ..Pins::default()
+            }
+        } else {
+            Pins {
+                dir_decreasing: bit,
+                ..Pins::default()
+            }
+        };
+        let mut closed = board.apply(dir);
         for _ in 0..n.abs() {
-            hal.step(axis);
+            closed |= board.apply(Pins {
+                step_high: bit,
+                ..Pins::default()
+            });
         }
+        closed
     }
 
     #[test]
     fn backlash_makes_the_output_lag_after_a_reversal() {
         // 0.1 deg of play at 400 steps/deg = 40 steps of dead band.
-        let mut hal = SimHal::new(model("[effects]\nbacklash = { light_deg = 0.1 }\n"));
+        let mut hal = SimBoard::new(model("[effects]\nbacklash = { light_deg = 0.1 }\n"));
         steps(&mut hal, Axis::Light, 200);
-        assert_eq!(hal.output_steps()[0], 180.0, "output trails the motor by half the band");
+        assert_eq!(hal.output[0], 180.0, "output trails the motor by half the band");
         steps(&mut hal, Axis::Light, -30);
-        assert_eq!(
-            hal.output_steps()[0],
-            180.0,
-            "inside the dead band the output stands still"
-        );
+        assert_eq!(hal.output[0], 180.0, "inside the dead band the output stands still");
         steps(&mut hal, Axis::Light, -30);
-        assert_eq!(hal.output_steps()[0], 160.0);
+        assert_eq!(hal.output[0], 160.0);
         // Without the effect the output is the motor.
-        let mut ideal = SimHal::new(model(""));
+        let mut ideal = SimBoard::new(model(""));
         steps(&mut ideal, Axis::Light, 200);
         steps(&mut ideal, Axis::Light, -30);
-        assert_eq!(ideal.output_steps()[0], 170.0);
+        assert_eq!(ideal.output[0], 170.0);
     }
 
     #[test]
     fn the_limit_fault_hook_closes_the_switch_once_after_its_readings() {
-        let mut hal = SimHal::new(model(
+        let mut hal = SimBoard::new(model(
             "[effects]\nlimit_fault = { axis = \"tilt\", after_readings = 1 }\n",
         ));
         steps(&mut hal, Axis::Tilt, 1);
@@ -241,7 +329,7 @@ mod tests {
 
     #[test]
     fn readouts_come_when_the_exposure_ends() {
-        let mut hal = SimHal::new(model(""));
+        let mut hal = SimBoard::new(model(""));
         hal.start_exposure(1000);
         assert!(hal.poll_readout().is_none());
         hal.now_us = 999;
@@ -249,5 +337,61 @@ mod tests {
         hal.now_us = 1000;
         assert_eq!(hal.poll_readout().map(|r| r.len()), Some(3));
         assert!(hal.poll_readout().is_none());
+    }
+}
+
+#[cfg(test)]
+mod step_path_tests {
+    use super::*;
+    use gonio_firmware::Steppers;
+    use std::path::Path;
+
+    fn hal() -> SimHal {
+        let text = "[camera]\nkind = \"orthographic\"\nwidth = 8\nheight = 8\n[object]\nshape = \"sphere\"\nmaterial = \"lambert:albedo=0.5\"\n";
+        let model = SimModel::from_toml(text, Path::new("t.toml"), crate::instrument::default_instrument(), 0).unwrap();
+        sim_hal(Arc::new(model))
+    }
+
+    /// Play the timer until the queue is idle.
+    fn play(hal: &mut SimHal) {
+        while let Some(w) = timer_wake(hal) {
+            hal.board.now_us = hal.board.now_us.max(w);
+            service_timer(hal);
+        }
+    }
+
+    #[test]
+    fn queued_steps_move_the_motors_only_when_the_timer_plays_them() {
+        let mut hal = hal();
+        hal.set_direction(Axis::Tilt, false);
+        for _ in 0..5 {
+            hal.step(Axis::Tilt);
+        }
+        assert_eq!(hal.board.steps_taken, 0, "queued, not played");
+        play(&mut hal);
+        assert_eq!(hal.board.steps_taken, 5);
+        assert_eq!(hal.board.output[Axis::Tilt.index()], -5.0);
+    }
+
+    #[test]
+    fn an_armed_switch_that_a_played_step_closes_trips_the_queue() {
+        let mut hal = hal();
+        let home = match hal.board.switches[Axis::Light.index()] {
+            Switch::AtOrAbove(p) => p,
+            s => panic!("light switch {s:?}"),
+        };
+        hal.board.motor[Axis::Light.index()] = home - 2;
+        hal.queue.with(|q| q.set_armed(1 << Axis::Light.index()));
+        hal.set_direction(Axis::Light, true);
+        for _ in 0..5 {
+            hal.step(Axis::Light);
+        }
+        play(&mut hal);
+        assert_eq!(
+            hal.board.motor[Axis::Light.index()],
+            home,
+            "playback stops on the closing step"
+        );
+        assert_eq!(hal.queue.with(|q| q.take_trip()), 1 << Axis::Light.index());
     }
 }

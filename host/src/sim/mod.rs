@@ -1,12 +1,17 @@
-//! The virtual gonio: the real firmware (`gonio_firmware::Device`) behind a simulated HAL, on a
+//! The virtual gonio: the real firmware (`gonio_firmware::Device`) behind a simulated board, on a
 //! Linux pseudo-terminal, so the host talks to it through the same serial code as to a board.
 //!
+//! ## Step path
+//! As on the STM32: the controller loop is `QueuedHal::run` (the controller ahead of real time,
+//! steps queued), and a simulated step timer interrupt plays the `StepQueue` back at its wake-ups
+//! ([`hal::service_timer`]); the motors move only on played steps.
+//!
 //! ## Time
-//! The simulation clock is instrument time (what the firmware's `now_us` reads and what its
-//! measurement timestamps carry). While the firmware has something scheduled (steps, a settle, an
-//! exposure) its clock runs `speedup` times faster than the wall clock; while it only waits for the
-//! host, it runs at the wall clock's rate, as it would on the bench (host latency costs the real
-//! instrument real time). `gonio sim --speedup X` sets the factor (default [`DEFAULT_SPEEDUP`]).
+//! The simulation clock is instrument time (the board's real time, what measurement timestamps
+//! carry). While the firmware has something scheduled (steps, a settle, an exposure) or steps are
+//! queued, it runs `speedup` times faster than the wall clock; while it only waits for the host, it
+//! runs at the wall clock's rate, as it would on the bench (host latency costs the real instrument
+//! real time). `gonio sim --speedup X` sets the factor (default [`DEFAULT_SPEEDUP`]).
 //!
 //! ## Pseudo-terminal
 //! `openpty` + raw mode on the slave; the simulation keeps its own slave descriptor open so that
@@ -34,7 +39,7 @@ pub const DEFAULT_SPEEDUP: f64 = 100.0;
 
 /// Bytes of device output held for a host that does not read, before the device is throttled.
 const OUT_BACKLOG: usize = 64 * 1024;
-/// Firmware polls between two looks at the pty (bounds the latency of host input).
+/// Controller loop turns and timer interrupts between two looks at the pty (bounds the latency of host input).
 const POLLS_PER_SLICE: usize = 2_000;
 
 #[derive(Debug, thiserror::Error)]
@@ -192,16 +197,9 @@ impl Drop for Fds {
 }
 
 fn run(fds: Fds, model: Arc<SimModel>, speedup: f64, control: &AtomicU8, counters: &SimCounters) -> SimReport {
-    let mut hal = SimHal::new(model);
-    // The firmware's Device is ~20 KiB: on the heap, not on this thread's stack.
-    let mut dev = Box::new(Device::new());
-    let mut inbuf: Vec<u8> = Vec::new();
-    let mut outbuf: Vec<u8> = Vec::new();
-    let mut tmp = [0u8; 4096];
-    let mut report = SimReport::default();
+    let mut sim = Instrument::new(model);
+    let mut io = PtyIo::default();
     let mut last_wall = Instant::now();
-    // Instrument microseconds the wall clock has granted but the firmware has not used yet.
-    let mut budget_us = 0.0f64;
     let mut stopping_since: Option<Instant> = None;
     loop {
         match control.load(Ordering::SeqCst) {
@@ -210,93 +208,183 @@ fn run(fds: Fds, model: Arc<SimModel>, speedup: f64, control: &AtomicU8, counter
                 let since = *stopping_since.get_or_insert_with(Instant::now);
                 // Keep the master open until the host has read what the device sent (or a second
                 // passed: a host that stopped reading is not waited for).
-                let sent = outbuf.is_empty() && dev.link().pending_bytes() == 0 && unread(fds.slave) == 0;
+                let sent = io.outbuf.is_empty() && sim.dev.outbox().pending_bytes() == 0 && unread(fds.slave) == 0;
                 if sent || since.elapsed() > Duration::from_secs(1) {
                     break;
                 }
             }
             _ => {}
         }
-        // Host -> device.
-        if inbuf.len() < 4096 {
-            match nix::unistd::read(fds.master, &mut tmp) {
-                Ok(n) => {
-                    inbuf.extend_from_slice(tmp.get(..n).unwrap_or(&[]));
-                    report.bytes_in += n as u64;
-                }
-                Err(nix::errno::Errno::EAGAIN | nix::errno::Errno::EIO | nix::errno::Errno::EINTR) => {}
-                Err(_) => break,
-            }
+        if io.read(fds.master).is_err() {
+            break;
         }
-        if !inbuf.is_empty() {
-            let n = dev.receive(&mut hal, &inbuf);
-            inbuf.drain(..n.min(inbuf.len()));
-            dev.poll(&mut hal);
-            drain(&mut dev, &mut outbuf, &mut tmp);
-        }
-        // Time.
+        sim.receive(&mut io);
         let now = Instant::now();
-        let dt_us = now.duration_since(last_wall).as_secs_f64() * 1e6;
+        let wall_us = now.duration_since(last_wall).as_secs_f64() * 1e6;
         last_wall = now;
-        if dev.next_deadline_us().is_some() {
-            budget_us = (budget_us + dt_us * speedup).min(3.6e9);
+        sim.advance(wall_us, speedup, &mut io);
+        counters.readings.store(sim.hal.board.readings, Ordering::Relaxed);
+        counters.instrument_us.store(sim.hal.board.now_us, Ordering::Relaxed);
+        if io.write(fds.master).is_err() {
+            break;
+        }
+        io.wait(fds.master, sim.idle_wall_ms(speedup, !io.inbuf.is_empty()));
+    }
+    SimReport {
+        instrument_us: sim.hal.board.now_us,
+        readings: sim.hal.board.readings,
+        steps: sim.hal.board.steps_taken,
+        bytes_in: io.bytes_in,
+        bytes_out: io.bytes_out,
+    }
+}
+
+/// The device and its board, on instrument time.
+struct Instrument {
+    hal: SimHal,
+    /// The firmware's Device is ~20 KiB: on the heap, not on this thread's stack.
+    dev: Box<Device>,
+    /// Board time the controller loop asked to run again at (`QueuedHal::run`'s answer).
+    run_at: Option<u64>,
+    /// Instrument microseconds the wall clock has granted but the instrument has not used yet.
+    budget_us: f64,
+}
+
+impl Instrument {
+    fn new(model: Arc<SimModel>) -> Self {
+        Self {
+            hal: hal::sim_hal(model),
+            dev: Box::new(Device::new()),
+            run_at: Some(0),
+            budget_us: 0.0,
+        }
+    }
+
+    /// Host bytes into the device, then a turn of the controller loop.
+    fn receive(&mut self, io: &mut PtyIo) {
+        if io.inbuf.is_empty() {
+            return;
+        }
+        let n = self.dev.receive(&mut self.hal, &io.inbuf);
+        io.inbuf.drain(..n.min(io.inbuf.len()));
+        self.run_at = self.hal.run(&mut self.dev);
+        io.take_output(&mut self.dev);
+    }
+
+    /// The board time of the next thing the instrument does on its own: a step timer interrupt or
+    /// a turn of the controller loop; `None` when only the host can make progress.
+    fn next_event(&self) -> Option<u64> {
+        [hal::timer_wake(&self.hal), self.run_at].into_iter().flatten().min()
+    }
+
+    /// Let `wall_us` of wall time pass: `speedup` times as much instrument time while busy, as much
+    /// while waiting for the host. Runs timer interrupts and the controller loop as they fall due.
+    fn advance(&mut self, wall_us: f64, speedup: f64, io: &mut PtyIo) {
+        if self.next_event().is_some() {
+            self.budget_us = (self.budget_us + wall_us * speedup).min(3.6e9);
         } else {
-            hal.now_us = hal.now_us.saturating_add(dt_us as u64);
-            budget_us = 0.0;
+            self.hal.board.now_us = self.hal.board.now_us.saturating_add(wall_us as u64);
+            self.budget_us = 0.0;
         }
         for _ in 0..POLLS_PER_SLICE {
-            let Some(due) = dev.next_deadline_us() else { break };
-            let wait = due.saturating_sub(hal.now_us) as f64;
-            if wait > budget_us || outbuf.len() >= OUT_BACKLOG {
+            let Some(due) = self.next_event() else { break };
+            let wait = due.saturating_sub(self.hal.board.now_us) as f64;
+            if wait > self.budget_us || io.outbuf.len() >= OUT_BACKLOG {
                 break;
             }
-            budget_us -= wait;
-            hal.now_us = hal.now_us.max(due);
-            dev.poll(&mut hal);
-            drain(&mut dev, &mut outbuf, &mut tmp);
-        }
-        counters.readings.store(hal.readings, Ordering::Relaxed);
-        counters.instrument_us.store(hal.now_us, Ordering::Relaxed);
-        // Device -> host.
-        if !outbuf.is_empty() {
-            match nix::unistd::write(fds.master, &outbuf) {
-                Ok(n) => {
-                    outbuf.drain(..n.min(outbuf.len()));
-                    report.bytes_out += n as u64;
-                }
-                Err(nix::errno::Errno::EAGAIN | nix::errno::Errno::EIO | nix::errno::Errno::EINTR) => {}
-                Err(_) => break,
+            self.budget_us -= wait;
+            self.hal.board.now_us = self.hal.board.now_us.max(due);
+            if hal::timer_wake(&self.hal).is_some_and(|w| w <= self.hal.board.now_us) {
+                hal::service_timer(&mut self.hal);
+            }
+            if self.run_at.is_some_and(|t| t <= self.hal.board.now_us) {
+                self.run_at = self.hal.run(&mut self.dev);
+                io.take_output(&mut self.dev);
             }
         }
-        // Sleep until the pty has something, or the next deadline's wall instant (at most 2 ms,
-        // so stop requests and clock drift are looked at often).
-        let busy = !inbuf.is_empty()
-            || dev
-                .next_deadline_us()
-                .is_some_and(|d| (d.saturating_sub(hal.now_us) as f64) <= budget_us);
-        let timeout_ms = if busy {
-            0
-        } else {
-            match dev.next_deadline_us() {
-                Some(d) => {
-                    (((d.saturating_sub(hal.now_us) as f64 - budget_us) / speedup / 1000.0).ceil() as i32).clamp(0, 2)
-                }
-                None => 2,
+    }
+
+    /// How long the thread may sleep on the pty: until the next event's wall instant, at most
+    /// 2 ms (so stop requests and clock drift are looked at often), 0 when work is due now.
+    fn idle_wall_ms(&self, speedup: f64, input_waiting: bool) -> i32 {
+        let next = self.next_event();
+        let ahead = |d: u64| d.saturating_sub(self.hal.board.now_us) as f64;
+        if input_waiting || next.is_some_and(|d| ahead(d) <= self.budget_us) {
+            return 0;
+        }
+        match next {
+            Some(d) => (((ahead(d) - self.budget_us) / speedup / 1000.0).ceil() as i32).clamp(0, 2),
+            None => 2,
+        }
+    }
+}
+
+/// Bytes between the pty and the device, with their counts.
+#[derive(Default)]
+struct PtyIo {
+    inbuf: Vec<u8>,
+    outbuf: Vec<u8>,
+    bytes_in: u64,
+    bytes_out: u64,
+}
+
+impl PtyIo {
+    /// Host -> device buffer, up to 4 KiB held; `Err` when the pty is gone.
+    fn read(&mut self, master: RawFd) -> Result<(), nix::Error> {
+        if self.inbuf.len() >= 4096 {
+            return Ok(());
+        }
+        let mut tmp = [0u8; 4096];
+        match nix::unistd::read(master, &mut tmp) {
+            Ok(n) => {
+                self.inbuf.extend_from_slice(tmp.get(..n).unwrap_or(&[]));
+                self.bytes_in += n as u64;
+                Ok(())
             }
-        };
+            Err(nix::errno::Errno::EAGAIN | nix::errno::Errno::EIO | nix::errno::Errno::EINTR) => Ok(()),
+            Err(e) => Err(e),
+        }
+    }
+
+    /// Device -> host, as much as the pty takes; `Err` when the pty is gone.
+    fn write(&mut self, master: RawFd) -> Result<(), nix::Error> {
+        if self.outbuf.is_empty() {
+            return Ok(());
+        }
+        match nix::unistd::write(master, &self.outbuf) {
+            Ok(n) => {
+                self.outbuf.drain(..n.min(self.outbuf.len()));
+                self.bytes_out += n as u64;
+                Ok(())
+            }
+            Err(nix::errno::Errno::EAGAIN | nix::errno::Errno::EIO | nix::errno::Errno::EINTR) => Ok(()),
+            Err(e) => Err(e),
+        }
+    }
+
+    /// Everything in the device's outbox, into `outbuf`.
+    fn take_output(&mut self, dev: &mut Device) {
+        let mut tmp = [0u8; 4096];
+        loop {
+            let n = dev.drain_outbox(&mut tmp);
+            if n == 0 {
+                break;
+            }
+            self.outbuf.extend_from_slice(tmp.get(..n).unwrap_or(&[]));
+        }
+    }
+
+    /// Sleep until the pty is readable (or writable, with output pending) or `timeout_ms` passed.
+    fn wait(&self, master: RawFd, timeout_ms: i32) {
         let mut flags = PollFlags::POLLIN;
-        if !outbuf.is_empty() {
+        if !self.outbuf.is_empty() {
             flags |= PollFlags::POLLOUT;
         }
-        let mut pfd = [PollFd::new(fds.master, flags)];
-        if timeout_ms > 0 || !outbuf.is_empty() {
+        let mut pfd = [PollFd::new(master, flags)];
+        if timeout_ms > 0 || !self.outbuf.is_empty() {
             let _ = poll(&mut pfd, timeout_ms);
         }
     }
-    report.instrument_us = hal.now_us;
-    report.readings = hal.readings;
-    report.steps = hal.steps_taken;
-    report
 }
 
 /// Bytes waiting in the slave's input queue, i.e. sent by the device and not yet read by the host.
@@ -309,15 +397,5 @@ fn unread(slave: RawFd) -> usize {
         usize::try_from(n).unwrap_or(0)
     } else {
         0
-    }
-}
-
-fn drain(dev: &mut Device, outbuf: &mut Vec<u8>, tmp: &mut [u8]) {
-    loop {
-        let n = dev.drain_outbox(tmp);
-        if n == 0 {
-            break;
-        }
-        outbuf.extend_from_slice(tmp.get(..n).unwrap_or(&[]));
     }
 }
