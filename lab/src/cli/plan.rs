@@ -1,7 +1,6 @@
 //! `gonio-lab plan-report` and `gonio-lab tradeoff`: argument handling over
 //! `gonio_lab::plan::{report, tradeoff}`.
 
-use super::parse_name;
 use anyhow::{bail, Context, Result};
 use gonio::plan::{PlanError, MAX_LEVEL};
 use gonio_lab::plan::report::{self, ReportConfig};
