@@ -31,8 +31,7 @@ use planner::FirmwareCheck;
 use std::collections::HashMap;
 use std::fmt;
 
-/// Smallest alpha the planner builds a specular warp with: below it the warp is a delta (no
-/// inverse); the estimate's own value still shapes the mixture's table.
+/// Smallest alpha of the mixture's visible-normal part (below it the warp is a delta, no inverse).
 pub const PLAN_ALPHA_MIN: f64 = 0.01;
 /// Table resolution of the mixture warp (vertices per side).
 pub const MIXTURE_TABLE_RES: usize = 48;
