@@ -456,7 +456,7 @@ impl Controller {
     /// The link dropped `link::BAD_FRAME_FAULT_RUN` frames in a row: the host cannot be
     /// heard (it could not even stop us), so nothing new starts; a move in progress finishes its
     /// deceleration. Cleared by `Abort` or `Home` once frames get through again.
-    pub fn link_untrusted(&mut self) {
+    pub(crate) fn link_untrusted(&mut self) {
         if self.state != ControllerState::Fault {
             self.enter_fault(Fault::BadFrame);
             self.more_work = true;
