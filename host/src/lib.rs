@@ -9,6 +9,7 @@ pub mod journal;
 pub mod link;
 pub mod plan;
 pub mod plot;
+pub mod progress_bar;
 pub mod render;
 pub mod scan;
 pub mod sim;

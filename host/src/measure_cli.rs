@@ -2,7 +2,8 @@
 
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
-use gonio::link::{self, Connection, TerminalProgress};
+use gonio::link::{self, Connection};
+use gonio::progress_bar::{print_run, TerminalProgress};
 use gonio::sim::{model::SimModel, SimHandle, DEFAULT_SPEEDUP};
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -102,7 +103,7 @@ pub fn run_measure(a: MeasureArgs) -> Result<()> {
     let measured = result?;
     let csv = a.out.join("measurements.csv");
     link::write_csv(&csv, &cfg, &plan, &measured.journal).with_context(|| format!("cannot write {}", csv.display()))?;
-    link::print_run(&measured);
+    print_run(&measured);
     println!("wrote {}", csv.display());
     if let Some(sim) = sim {
         sim.stop();

@@ -4,7 +4,8 @@
 use super::calibration::{self, Calibration};
 use super::{FreshScan, LevelRule, ScanRequest, Start};
 use crate::encoder::ModelKind;
-use crate::link::{self, run_options, TerminalProgress};
+use crate::link::{self, run_options};
+use crate::progress_bar::{print_run, TerminalProgress};
 use anyhow::{bail, Context, Result};
 use std::io::BufRead;
 use std::path::PathBuf;
@@ -133,7 +134,7 @@ pub fn run_scan(a: ScanArgs) -> Result<()> {
     let outcome = result?;
     let r = &outcome.record;
     let t = &outcome.times;
-    link::print_run(&outcome.measured);
+    print_run(&outcome.measured);
     println!(
         "scan: {} directions (level {}, {}x{} x {} incoming; {}), estimate {}",
         r.directions,

@@ -1,14 +1,14 @@
 //! The body that `gonio measure` and `gonio scan` share: open the port (optionally through the
 //! fault injector), handshake before anything is written, then open or resume the journal in the
-//! output folder and run the plan with reconnects, behind a terminal progress bar.
+//! output folder and run the plan with reconnects, reporting through a [`Progress`].
 //!
 //! The split into [`Connection::open`] and [`Connection::measure`] lets a caller write its own
 //! files between the two (a scan stores its inputs once a gonio has answered, so a port that is
 //! not a gonio leaves nothing behind).
 
 use super::{
-    run_plan, FaultConfig, FaultCounts, FaultyTransport, Link, LinkError, Progress, ReopenFaulty, ReopenPath, RunError,
-    RunOptions, RunSummary, SerialTransport, SharedFaultCounts, Transport,
+    run_plan, FaultConfig, FaultCounts, FaultyTransport, Link, LinkError, Progress, Reconnect, ReopenFaulty,
+    ReopenPath, RunError, RunOptions, RunSummary, SerialTransport, SharedFaultCounts, Transport,
 };
 use crate::journal::{Journal, JournalError};
 use gonio_shared::instrument::InstrumentConfig;
@@ -135,7 +135,7 @@ impl Connection {
             faults,
             counts: self.fault_counts.clone(),
         });
-        let reopen: &mut dyn super::Reconnect = match &mut reopen_faulty {
+        let reopen: &mut dyn Reconnect = match &mut reopen_faulty {
             Some(r) => r,
             None => &mut reopen_plain,
         };
@@ -160,79 +160,10 @@ impl Connection {
     }
 }
 
-/// A terminal progress bar: directions done, instrument time at the last reading, and the ETA
-/// from this run's wall rate (hidden when stderr is not a terminal).
-pub struct TerminalProgress {
-    bar: indicatif::ProgressBar,
-    start: Instant,
-    first_done: Option<u32>,
-}
-
-impl TerminalProgress {
-    pub fn new(total: usize) -> Self {
-        let bar = indicatif::ProgressBar::new(total as u64).with_style(
-            indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} directions, {msg}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        Self {
-            bar,
-            start: Instant::now(),
-            first_done: None,
-        }
-    }
-
-    pub fn finish(&self) {
-        self.bar.finish_and_clear();
-    }
-}
-
-impl Progress for TerminalProgress {
-    fn update(&mut self, done: u32, total: u32, instrument_s: f64) {
-        self.bar.set_length(u64::from(total));
-        self.bar.set_position(u64::from(done));
-        // The rate counts only this run's readings: resumed ones took no time here.
-        let first = *self.first_done.get_or_insert(done);
-        let measured = done.saturating_sub(first);
-        let eta = if measured > 0 {
-            let per = self.start.elapsed().as_secs_f64() / f64::from(measured);
-            format!("{:.0} s", per * f64::from(total.saturating_sub(done)))
-        } else {
-            "?".into()
-        };
-        self.bar
-            .set_message(format!("instrument {instrument_s:.1} s, ETA {eta}"));
-    }
-    fn note(&mut self, line: &str) {
-        self.bar.suspend(|| eprintln!("{line}"));
-    }
-}
-
 /// Link options from the user's timeouts (seconds), clamped to sane ranges.
 pub fn run_options(hello_timeout: f64, reconnect_wait: f64) -> RunOptions {
     let mut opts = RunOptions::default();
     opts.timing.hello_timeout = Duration::from_secs_f64(hello_timeout.clamp(0.1, 600.0));
     opts.reconnect_wait = Duration::from_secs_f64(reconnect_wait.clamp(0.0, 86_400.0));
     opts
-}
-
-/// The run's rates and link statistics, two or three lines.
-pub fn print_run(m: &Measured) {
-    let summary = &m.summary;
-    let n = summary.measured_now;
-    println!(
-        "measured {n} directions ({} resumed from the journal) in {:.1} s instrument time, {:.2} s wall: {:.1} directions/s instrument, {:.1} directions/s wall",
-        m.resumed,
-        summary.instrument_s,
-        m.wall_s,
-        f64::from(n) / summary.instrument_s.max(1e-9),
-        f64::from(n) / m.wall_s.max(1e-9)
-    );
-    let s = summary.stats;
-    println!(
-        "link: {} frames sent, {} retransmitted ({} timeouts, {} NAKs), {} bad frames in, {} duplicate measurements, {} resend requests, {} reconnects",
-        s.frames_sent, s.retransmits, s.timeouts, s.naks, s.bad_frames_in, s.duplicate_measurements, s.resend_requests, summary.reconnects
-    );
-    if let Some((to_device, to_host)) = &m.injected {
-        println!("injected faults: host->device {to_device:?}; device->host {to_host:?}");
-    }
 }
