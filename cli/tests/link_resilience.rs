@@ -6,7 +6,9 @@ mod common_link;
 
 use common_link::*;
 use gonio::journal::Journal;
-use gonio::link::{self, FaultConfig, FaultyTransport, Quiet, ReopenPath, RunOptions, SerialTransport, Transport};
+use gonio::link::{
+    self, FaultConfig, FaultyTransport, Quiet, ReopenPath, RunOptions, SerialTransport, SharedFaultCounts,
+};
 use gonio::sim::{model::SimModel, SimHandle};
 use std::sync::Arc;
 use std::time::Duration;
@@ -33,24 +35,14 @@ fn scan_with(
     std::fs::create_dir_all(&out).unwrap();
     let mut journal = Journal::create(&out, 1, n as u32).unwrap();
     let serial = SerialTransport::open(&port).unwrap();
-    let faulty = FaultyTransport::new(serial, faults);
-    // Keep a handle on the injector's counters through a shared cell.
-    let shared = Arc::new(std::sync::Mutex::new(faulty));
-    struct Shared(Arc<std::sync::Mutex<FaultyTransport<SerialTransport>>>);
-    impl Transport for Shared {
-        fn write_all(&mut self, b: &[u8]) -> std::io::Result<()> {
-            self.0.lock().unwrap().write_all(b)
-        }
-        fn read(&mut self, b: &mut [u8], t: Duration) -> std::io::Result<usize> {
-            self.0.lock().unwrap().read(b, t)
-        }
-    }
+    let counts = SharedFaultCounts::default();
+    let faulty = FaultyTransport::new(serial, faults).with_shared_counts(counts.clone());
     let opts = RunOptions {
         reconnect_wait: Duration::from_secs(0),
         ..RunOptions::default()
     };
     let summary = link::run_plan(
-        Box::new(Shared(shared.clone())),
+        Box::new(faulty),
         &mut ReopenPath(port),
         &cfg,
         &plan,
@@ -59,7 +51,7 @@ fn scan_with(
         &opts,
     )
     .unwrap_or_else(|e| panic!("scan under {faults:?} failed: {e}"));
-    let counts = shared.lock().unwrap().counts();
+    let counts = *counts.lock().unwrap();
     sim.stop();
     // Exactly once: one journal line per plan direction, each index once.
     let mut indices = journal_indices(&out);

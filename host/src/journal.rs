@@ -90,6 +90,11 @@ impl Journal {
             .map_err(io)?;
         file.write_all(header(plan_hash, total).as_bytes()).map_err(io)?;
         file.sync_all().map_err(io)?;
+        // The new name must be on disk before any reading is acknowledged as synced.
+        crate::fsio::sync_dir(dir).map_err(io)?;
+        // The folder's own entry too (a scan creates the folder just before); best effort, as a
+        // parent may be searchable without being readable.
+        let _ = crate::fsio::sync_dir(crate::fsio::parent_dir(dir));
         Ok(Self {
             path,
             file,
@@ -158,10 +163,6 @@ impl Journal {
 
     pub fn records(&self) -> &BTreeMap<u32, Record> {
         &self.records
-    }
-
-    pub fn contains(&self, index: u32) -> bool {
-        self.records.contains_key(&index)
     }
 
     /// Plan indices not yet measured, in plan order.

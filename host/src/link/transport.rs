@@ -300,11 +300,6 @@ impl<T: Transport> FaultyTransport<T> {
         }
     }
 
-    /// (host -> device, device -> host) counts.
-    pub fn counts(&self) -> (FaultCounts, FaultCounts) {
-        (self.tx.counts, self.rx.counts)
-    }
-
     fn flush_tx(&mut self) -> io::Result<()> {
         let mut out = Vec::new();
         self.tx.release_due(&mut out);
@@ -421,7 +416,8 @@ mod tests {
     fn the_injector_acts_on_whole_frames_and_is_reproducible() {
         let frames: Vec<u8> = (1..=200u8).flat_map(|k| [k, k, 0]).collect();
         let run = |cfg: FaultConfig| {
-            let mut t = FaultyTransport::new(Loop(VecDeque::new()), cfg);
+            let counts = SharedFaultCounts::default();
+            let mut t = FaultyTransport::new(Loop(VecDeque::new()), cfg).with_shared_counts(counts.clone());
             t.write_all(&frames).unwrap();
             let mut got = Vec::new();
             let mut buf = [0u8; 64];
@@ -432,7 +428,8 @@ mod tests {
                 }
                 got.extend_from_slice(&buf[..n]);
             }
-            (got, t.counts())
+            let c = *counts.lock().unwrap();
+            (got, c)
         };
         let cfg = FaultConfig {
             drop: 0.1,
@@ -480,7 +477,8 @@ mod tests {
             loop_back.0.extend(&f[..n]);
         }
         let cfg: FaultConfig = "drop_credits=2".parse().unwrap();
-        let mut t = FaultyTransport::new(loop_back, cfg);
+        let counts = SharedFaultCounts::default();
+        let mut t = FaultyTransport::new(loop_back, cfg).with_shared_counts(counts.clone());
         let mut got = Vec::new();
         let mut buf = [0u8; 64];
         let mut dec = FrameDecoder::new();
@@ -496,6 +494,6 @@ mod tests {
             }
         }
         assert_eq!(got, vec![msgs[0].clone(), msgs[1].clone(), msgs[4].clone()]);
-        assert_eq!(t.counts().1.dropped, 2);
+        assert_eq!(counts.lock().unwrap().1.dropped, 2);
     }
 }

@@ -1,14 +1,14 @@
 //! The body that `gonio measure` and `gonio scan` share: open the port (optionally through the
 //! fault injector), handshake before anything is written, then open or resume the journal in the
-//! output folder and run the plan with reconnects, reporting to a `Progress`.
+//! output folder and run the plan with reconnects, reporting through a [`Progress`].
 //!
 //! The split into [`Connection::open`] and [`Connection::measure`] lets a caller write its own
 //! files between the two (a scan stores its inputs once a gonio has answered, so a port that is
 //! not a gonio leaves nothing behind).
 
 use super::{
-    run_plan, FaultConfig, FaultCounts, FaultyTransport, Link, LinkError, Progress, ReopenFaulty, ReopenPath, RunError,
-    RunOptions, RunSummary, SerialTransport, SharedFaultCounts, Transport,
+    run_plan, FaultConfig, FaultCounts, FaultyTransport, Link, LinkError, Progress, Reconnect, ReopenFaulty,
+    ReopenPath, RunError, RunOptions, RunSummary, SerialTransport, SharedFaultCounts, Transport,
 };
 use crate::journal::{Journal, JournalError};
 use gonio_shared::instrument::InstrumentConfig;
@@ -135,7 +135,7 @@ impl Connection {
             faults,
             counts: self.fault_counts.clone(),
         });
-        let reopen: &mut dyn super::Reconnect = match &mut reopen_faulty {
+        let reopen: &mut dyn Reconnect = match &mut reopen_faulty {
             Some(r) => r,
             None => &mut reopen_plain,
         };
