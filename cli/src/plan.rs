@@ -31,7 +31,7 @@ pub struct LevelArgs {
 #[command(group = clap::ArgGroup::new("input").args(["photo", "material_model"]).required(true))]
 pub struct PlanArgs {
     /// A capture photo of the sample (examples/capture.toml; EXR linear, or PNG): the encoder
-    /// estimates the material from it (`plan::photo`).
+    /// estimates the material from it (`encoder::photo`).
     #[arg(value_name = "IMAGE")]
     pub photo: Option<PathBuf>,
     /// The encoder model for IMAGE.
@@ -92,7 +92,7 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
     let estimate = match (&args.photo, &args.material_model) {
         (Some(photo), _) => {
             // The photo error names the file already.
-            let e = gonio::plan::photo::estimate_from_photo(photo, args.model)?;
+            let e = gonio::encoder::photo::estimate_from_photo(photo, args.model)?;
             println!(
                 "estimate from {} ({} model): {} in {:.2} s",
                 photo.display(),

@@ -7,7 +7,7 @@ use criterion::Criterion;
 use gonio::encoder::capture::render_capture;
 use gonio::encoder::infer::{shipped, Encoder};
 use gonio::encoder::{preprocess, resample_square, ModelKind};
-use gonio::plan::photo::estimate_from_image;
+use gonio::encoder::photo::estimate_from_image;
 use gonio::render::Image;
 use std::hint::black_box;
 use std::time::{Duration, Instant};
@@ -43,7 +43,7 @@ fn benches(c: &mut Criterion) {
         g.finish();
     }
     // The planner's whole photo step: GGX network + the diffuse/specular split fitted against two
-    // capture renders (plan::photo).
+    // capture renders (encoder::photo).
     let ggx = Encoder::shipped(ModelKind::Ggx).expect("shipped model");
     let mut g = c.benchmark_group("photo_estimate");
     g.sample_size(10);

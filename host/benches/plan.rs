@@ -59,7 +59,7 @@ fn scaling() {
     let photo = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/sample.png");
     for run in 1..=3 {
         let t = Instant::now();
-        let estimate = gonio::plan::photo::estimate_from_photo(&photo, gonio::encoder::ModelKind::Ggx)
+        let estimate = gonio::encoder::photo::estimate_from_photo(&photo, gonio::encoder::ModelKind::Ggx)
             .expect("examples/sample.png")
             .estimate;
         let e = t.elapsed().as_secs_f64();

@@ -11,6 +11,7 @@
 pub mod capture;
 pub mod infer;
 pub mod observable;
+pub mod photo;
 
 use crate::render::image::srgb_to_linear;
 use crate::render::Image;

@@ -2,7 +2,7 @@
 //! measure -> reconstruct -> outputs, against a board (`--port`) or the virtual gonio (`--sim`).
 //!
 //! Phases (each timed on the host clock and reported in `report.md`):
-//! 1. **estimate**: `plan::photo::estimate_from_photo` (encoder + diffuse/specular split);
+//! 1. **estimate**: `encoder::photo::estimate_from_photo` (encoder + diffuse/specular split);
 //! 2. **plan**: `plan::Planner` with nested levels; the level comes from the user's rule (`--grid`,
 //!    the predictive `--target-psnr` / `--target-flip`, or `--time-budget`, see [`LevelRule`]);
 //!    the encoded plan is re-simulated before it is sent (`Plan::check_encoded`);
@@ -57,7 +57,7 @@ pub enum ScanError {
     #[error("{0}")]
     Input(String),
     #[error(transparent)]
-    Photo(#[from] crate::plan::photo::PhotoError),
+    Photo(#[from] crate::encoder::photo::PhotoError),
     #[error(transparent)]
     Plan(#[from] crate::plan::PlanError),
     #[error(transparent)]
@@ -566,7 +566,7 @@ fn prepare_fresh(
         None => None,
     };
     let t = Instant::now();
-    let photo = crate::plan::photo::estimate_from_photo(&f.image, f.model)?;
+    let photo = crate::encoder::photo::estimate_from_photo(&f.image, f.model)?;
     times.estimate = t.elapsed().as_secs_f64();
     note(&format!("estimate: {} ({:.2} s)", photo.spec(), times.estimate));
     let t = Instant::now();

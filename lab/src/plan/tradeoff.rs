@@ -330,11 +330,11 @@ pub struct TradeRow {
     pub paper_psnr_env: Option<f64>,
 }
 
-/// The encoder's estimate (`plan::photo::estimate_from_image`, GGX model) from a capture photo of
+/// The encoder's estimate (`encoder::photo::estimate_from_image`, GGX model) from a capture photo of
 /// `spec` (`capture_photo`), and the host time it took (s).
 pub fn photo_estimate(photo: &Image, encoder: &Encoder) -> Result<(Estimate, f64), PlanError> {
     let t0 = Instant::now();
-    let est = super::photo::estimate_from_image(photo, encoder, None)?;
+    let est = gonio::encoder::photo::estimate_from_image(photo, encoder, None)?;
     Ok((est.estimate, t0.elapsed().as_secs_f64()))
 }
 
