@@ -9,7 +9,6 @@
 
 pub mod file;
 pub mod order;
-pub mod photo_samples;
 mod planner;
 pub mod predict;
 

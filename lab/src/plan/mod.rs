@@ -4,6 +4,7 @@
 
 pub use gonio::plan::*;
 
+pub mod photo_samples;
 pub mod report;
 pub mod trials;
 pub mod tradeoff;

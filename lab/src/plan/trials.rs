@@ -1,7 +1,7 @@
 //! Trial priors of `gonio-lab tradeoff --prior`: each lost to the product's two-lobes
 //! (docs/tradeoff/README.md). One file, one `reconstruct::Prior` each; not used by a scan.
 
-use gonio::plan::photo_samples::{self, PhotoSamples};
+use super::photo_samples::{self, PhotoSamples};
 use gonio::brdf::fit::{fit_samples, FitModel};
 use gonio::brdf::fit_lobes::{fit_two_lobes_bounded, DiffuseBound, LobeFresnel};
 use gonio::reconstruct::{FittedPrior, LevelSamples, NoPrior, Prior, TwoLobesPrior};

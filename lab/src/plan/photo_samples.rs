@@ -8,14 +8,14 @@
 //! highlight's centre out to the rim. Each pixel is P = s f(wi, wo) cos(theta_i) E(p), with E the
 //! light's irradiance at the point (known from the scene) and s the light x exposure scale;
 //! `PhotoSamples` holds (wi, wo) and P / (cos(theta_i) E) = s f. `append_weighted` takes s = 1, a
-//! calibrated capture (as `gonio tradeoff`'s rendered one is); `trials::PhotoTwoLobesPrior` is a trial
+//! calibrated capture (as `gonio-lab tradeoff`'s rendered one is); `trials::PhotoTwoLobesPrior` is a trial
 //! (docs/tradeoff/README.md), and an uncalibrated photo would need s fitted too.
 //!
 //! The geometry is the renderer's own (camera ray through the pixel centre, the shape's hit, the
 //! shading frame), so a photo rendered from the scene with one sample per pixel maps exactly.
 
-use crate::render::renderer::Frame;
-use crate::render::{Image, Scene};
+use gonio::render::renderer::Frame;
+use gonio::render::{Image, Scene};
 use glam::DVec3;
 
 /// Pixels with either direction closer to the horizon than this (cos theta) are left out: there
@@ -107,8 +107,8 @@ pub fn photo_samples(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::encoder::capture::capture_scene;
-    use crate::render::render_with;
+    use gonio::encoder::capture::capture_scene;
+    use gonio::render::render_with;
 
     #[test]
     fn appended_photo_samples_weigh_their_share_of_the_fit() {
