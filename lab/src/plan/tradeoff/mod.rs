@@ -27,7 +27,7 @@ use gonio::reconstruct::{reconstruct_with, Prior, TwoLobesPrior};
 use gonio::render::render_with;
 use gonio::render::{Image, Scene};
 use gonio_shared::instrument::InstrumentConfig;
-use std::fmt::{self, Write};
+use std::fmt;
 use std::path::Path;
 use std::time::Instant;
 
