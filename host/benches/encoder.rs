@@ -6,8 +6,8 @@
 use criterion::Criterion;
 use gonio::encoder::capture::render_capture;
 use gonio::encoder::infer::{shipped, Encoder};
-use gonio::encoder::{preprocess, resample_square, ModelKind};
 use gonio::encoder::photo::estimate_from_image;
+use gonio::encoder::{preprocess, resample_square, ModelKind};
 use gonio::render::Image;
 use std::hint::black_box;
 use std::time::{Duration, Instant};

@@ -14,12 +14,12 @@
 //! and saturated pixels of 8-bit or 16-bit PNGs are left out of the fit (a clipped highlight would
 //! bias b low).
 
-use crate::plan::{Estimate, PlanError};
-use crate::brdf::analytic::{Ggx, Ward};
-use crate::brdf::spec::Analytic;
 use super::capture::render_capture;
 use super::infer::Encoder;
 use super::{load_photo, preprocess, resample_square, EncoderError, ModelKind, INPUT_SIZE};
+use crate::brdf::analytic::{Ggx, Ward};
+use crate::brdf::spec::Analytic;
+use crate::plan::{Estimate, PlanError};
 use crate::render::Image;
 use glam::DVec3;
 use std::path::Path;

@@ -67,7 +67,10 @@ pub fn level_keeps_residual(layout: NodeLayout, n: usize) -> bool {
 
 /// The product reconstruction's settings in one line (a scan records them; a resume compares them).
 pub fn settings() -> String {
-    format!("prior {}, ratio residual (floor {RATIO_FLOOR} /sr), query lookup", TwoLobesPrior.name())
+    format!(
+        "prior {}, ratio residual (floor {RATIO_FLOOR} /sr), query lookup",
+        TwoLobesPrior.name()
+    )
 }
 
 /// The product's reconstruction of `level` from `values` (indexed like the measurements).

@@ -4,7 +4,7 @@
 use anyhow::{bail, Context, Result};
 use gonio::plan::{PlanError, MAX_LEVEL};
 use gonio_lab::plan::report::{self, ReportConfig};
-use gonio_lab::plan::{trials, tradeoff};
+use gonio_lab::plan::{tradeoff, trials};
 use std::path::PathBuf;
 
 fn level_of(n: usize, what: &str) -> Result<usize> {

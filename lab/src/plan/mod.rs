@@ -6,5 +6,5 @@ pub use gonio::plan::*;
 
 pub mod photo_samples;
 pub mod report;
-pub mod trials;
 pub mod tradeoff;
+pub mod trials;

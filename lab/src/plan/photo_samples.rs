@@ -14,9 +14,9 @@
 //! The geometry is the renderer's own (camera ray through the pixel centre, the shape's hit, the
 //! shading frame), so a photo rendered from the scene with one sample per pixel maps exactly.
 
+use glam::DVec3;
 use gonio::render::renderer::Frame;
 use gonio::render::{Image, Scene};
-use glam::DVec3;
 
 /// Pixels with either direction closer to the horizon than this (cos theta) are left out: there
 /// the value divides by a small cosine, and a real photo's rim mixes in the background.

@@ -140,6 +140,7 @@ impl Prior for PhotoTwoLobesPrior {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use glam::DVec3;
     use gonio::brdf::analytic::Ggx;
     use gonio::brdf::frame::from_spherical;
     use gonio::brdf::Material;
@@ -147,7 +148,6 @@ mod tests {
     use gonio::plan::predict::log_err_over;
     use gonio::plan::{ggx_estimate, Plan, PlanConfig, Planner, Strategy};
     use gonio::reconstruct::reconstruct_with;
-    use glam::DVec3;
     use rand::{Rng, SeedableRng};
 
     fn mixture_plan(alpha: f64, diffuse: f64, max_level: usize) -> Plan {
