@@ -85,18 +85,18 @@ fn pixel(scene: &Scene, settings: &RenderSettings, x: usize, y: usize) -> DVec3 
 /// The shading frame at a hit: tangent, bitangent, normal. The tangent is glam's
 /// `any_orthonormal_pair` (Duff et al. 2017), which is fine for the isotropic materials this renderer
 /// is used with; an anisotropic material would need a tangent field of the shape instead.
-pub(crate) struct Frame {
+pub struct Frame {
     t: DVec3,
     b: DVec3,
     n: DVec3,
 }
 
 impl Frame {
-    pub(crate) fn new(n: DVec3) -> Self {
+    pub fn new(n: DVec3) -> Self {
         let (t, b) = n.any_orthonormal_pair();
         Self { t, b, n }
     }
-    pub(crate) fn to_local(&self, v: DVec3) -> DVec3 {
+    pub fn to_local(&self, v: DVec3) -> DVec3 {
         DVec3::new(v.dot(self.t), v.dot(self.b), v.dot(self.n))
     }
     fn to_world(&self, v: DVec3) -> DVec3 {
