@@ -3,6 +3,7 @@
 use super::*;
 use std::fmt::Write;
 
+/// The command that regenerates this run.
 pub(super) fn command(cfg: &TradeoffConfig) -> String {
     let mut c = "gonio-lab tradeoff".to_string();
     match cfg.preset {

@@ -498,8 +498,6 @@ pub fn render_sheet(truth: &Image, truth_env: &Image, rows: &[Vec<Image>]) -> (u
     tile(&panels, side, side, cols)
 }
 
-/// The command that regenerates this run.
-
 #[cfg(test)]
 mod tests {
     use super::*;
