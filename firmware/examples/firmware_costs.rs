@@ -75,7 +75,7 @@ fn bare_generator(cfg: &InstrumentConfig<f32>) -> f64 {
     let mut st = Stepper::new();
     let t0 = Instant::now();
     let mut polls = 0u64;
-    st.start(&mut hal, 0, target, cfg, 1.0).expect("valid move");
+    st.start(&mut hal, 0, target, cfg, 1.0, None).expect("valid move");
     while let Some(t) = st.next_due_us() {
         hal.now = t;
         st.poll(&mut hal, t, None).expect("no guard");

@@ -13,7 +13,7 @@ pub const MEASUREMENT_CAPACITY: usize = 128;
 /// Encoded frames waiting for the binary to write them to USB/UART. Holds ten worst-case frames.
 pub const OUTBOX_BYTES: usize = 2048;
 
-/// Timed STEP/DIR events between the controller loop and the step timer interrupt. The loop keeps
-/// `timed::LOOKAHEAD_US` (2 ms) queued: at 4 axes x 20 kHz that is 160 steps, plus DIR
-/// events at move starts and one poll's worth of headroom (`timed::EVENTS_PER_POLL`).
-pub const STEP_QUEUE_EVENTS: usize = 256;
+/// Segments queued per axis between the controller loop and the axis's compare channel. A ramp
+/// segment covers ~1 ms or more and a cruise is one segment, so 16 keep a channel fed well past
+/// the loop's lookahead (`timed::LOOKAHEAD_US`).
+pub const SEGMENT_RING: usize = 16;

@@ -223,7 +223,7 @@ impl Controller {
         let now = hal.now_us();
         self.last_now_us = self.last_now_us.max(now);
         self.more_work = true;
-        self.stepper.halt();
+        self.stepper.stop(hal);
         if self.state == ControllerState::Homing {
             if let Some(axis) = self.homing.axis() {
                 self.found_home(hal, now, axis);
@@ -288,7 +288,7 @@ impl Controller {
             HostMsg::Start => self.start(),
             HostMsg::Pause => self.pause(),
             HostMsg::Resume => self.resume(),
-            HostMsg::Abort => self.abort(),
+            HostMsg::Abort => self.abort(hal),
             HostMsg::AckMeasurements { through } => self.measurements.ack(through),
             HostMsg::ResendMeasurements { from } => self.measurements.resend(from),
             HostMsg::Hello(_) | HostMsg::GetStatus => Ok(()),
@@ -425,11 +425,11 @@ impl Controller {
         Ok(())
     }
 
-    fn abort(&mut self) -> Result<(), RefuseReason> {
+    fn abort<H: Hal>(&mut self, hal: &mut H) -> Result<(), RefuseReason> {
         use ControllerState::*;
         match self.state {
             Homing => {
-                self.stepper.halt();
+                self.stepper.stop(hal);
                 self.homed = false;
             }
             Fault => {
@@ -503,14 +503,14 @@ impl Controller {
     /// Switches first (a closed switch stops everything before another step), then due steps.
     fn drive_motion<H: Hal>(&mut self, hal: &mut H, now: u64) {
         let Some(cfg) = self.kin.first().map(|k| *k.config()) else {
-            self.stepper.halt();
+            self.stepper.stop(hal);
             return;
         };
         if self.state == ControllerState::Homing {
             // Only the seek looks at a switch: the others stand still, or move away from theirs.
             if let (Some(axis), Stage::Seek) = (self.homing.axis(), self.homing.stage) {
                 if hal.limit_closed(axis) {
-                    self.stepper.halt();
+                    self.stepper.stop(hal);
                     self.found_home(hal, now, axis);
                     return;
                 }
@@ -519,6 +519,7 @@ impl Controller {
             for axis in AXES {
                 // A continuous axis's index sensor closes once a turn: not a limit.
                 if !cfg.axis(axis).continuous && hal.limit_closed(axis) {
+                    self.stepper.stop(hal);
                     self.enter_fault(Fault::LimitSwitch(axis));
                     return;
                 }
@@ -549,7 +550,13 @@ impl Controller {
 
     fn start_move<H: Hal>(&mut self, hal: &mut H, now: u64, target: Steps, speed_scale: f32) -> bool {
         let Some(kin) = self.kin.first() else { return false };
-        match self.stepper.start(hal, now, target, kin.config(), speed_scale) {
+        let guard = self
+            .guard
+            .filter(|_| self.state != ControllerState::Homing || self.homing.arms_homed());
+        match self
+            .stepper
+            .start(hal, now, target, kin.config(), speed_scale, guard.as_ref())
+        {
             Ok(()) => true,
             Err(e) => {
                 self.motion_failed(e);

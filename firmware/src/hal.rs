@@ -3,9 +3,11 @@
 //! Synchronous and small (embedded-hal style): the step generator decides *when* to step from
 //! [`Clock::now_us`], the board only carries it out. [`Hal`] is all four, what the controller needs.
 //! On the board `timed::QueuedHal` provides [`Clock`] and [`Steppers`] itself (a schedule
-//! clock and queued step events) over a board that only has the clock, switches and detector;
+//! clock and queued step segments) over a board that only has the clock, switches and detector;
 //! host tests implement all four with a mock that records every call with its timestamp.
 
+use crate::segment::Segment;
+use gonio_shared::instrument::AXIS_COUNT;
 use gonio_shared::msg::caps::MAX_CHANNELS;
 use gonio_shared::Axis;
 use heapless::Vec;
@@ -19,6 +21,25 @@ pub trait Clock {
 }
 
 pub trait Steppers {
+    /// Does this board play step segments itself (one compare channel per axis)? Then the step
+    /// generator queues segments ([`Steppers::queue_segment`]) and never calls `step`; otherwise it
+    /// plays the same segments in software and calls `step` at each step's instant (the mock HAL).
+    const SEGMENTS: bool = false;
+
+    /// Free segment slots of `axis` (segment boards only).
+    fn segment_room(&self, _axis: Axis) -> usize {
+        0
+    }
+
+    /// Queue a segment of `axis` behind the ones already queued (segment boards only).
+    fn queue_segment(&mut self, _axis: Axis, _segment: Segment) {}
+
+    /// Stop every axis at once and drop what is queued; returns the steps per axis that were
+    /// queued and never made (segment boards only).
+    fn drop_queued(&mut self) -> [u32; AXIS_COUNT] {
+        [0; AXIS_COUNT]
+    }
+
     /// Set the direction pin of `axis` (`true` = increasing step count). Takes effect before the
     /// next [`Steppers::step`] of that axis (the driver's direction setup time is honoured).
     fn set_direction(&mut self, axis: Axis, increasing: bool);

@@ -1,72 +1,55 @@
-//! The step generator: one synchronised trapezoidal move at a time, each step's instant computed in
-//! closed form when it is due (`docs/firmware.md`).
+//! The step generator: one synchronised trapezoidal move at a time, each axis's steps as segments
+//! fitted to the analytic profile (`segment`), queued to a segment board or played here step by
+//! step (`docs/firmware.md`).
 
 use crate::hal::Steppers;
+use crate::segment::{tick, AxisProfile, Playback, SegmentGen, ONE_TICK};
 use gonio_shared::instrument::{InstrumentConfig, AXES, AXIS_COUNT};
 use gonio_shared::kinematics::Steps;
 use gonio_shared::motion::SyncMove;
 use gonio_shared::separation::SeparationGuard;
-use gonio_shared::{Axis, Real};
+use gonio_shared::Axis;
 use heapless::Vec;
+
+/// While a segment board plays a move, the controller still looks at its switches and the host
+/// this often (every poll costs ~2,000 instructions; 2 ms cost 6 more per step at full speed).
+pub const SWITCH_POLL_US: u64 = 4_000;
+/// A segment board's ring was full: look again this much later.
+const REFILL_RETRY_US: u64 = 500;
 
 /// Why a move could not start or continue.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum StepError {
     /// The profile is not finite (cannot happen with a validated configuration and finite targets).
     BadProfile,
-    /// The next step of an arm would bring the arms inside the blocking angle.
+    /// A step of an arm would bring the arms inside the blocking angle.
     Blocked,
-}
-
-/// The profile of one axis within a move, in that axis's steps.
-#[derive(Clone, Copy, Debug, Default)]
-struct AxisRun {
-    total: u32,
-    done: u32,
-    increasing: bool,
-    /// steps/s^2 and steps/s.
-    accel: f32,
-    peak: f32,
-    /// Steps covered by each ramp (half the move for a triangular profile).
-    ramp_steps: f32,
-    t_ramp_s: f32,
-    due_us: u64,
-}
-
-impl AxisRun {
-    /// The instant of step `k` (1-based) of this axis.
-    fn due(&self, k: u32, start_us: u64, end_us: u64) -> u64 {
-        let kf = k as f32;
-        let n = self.total as f32;
-        if kf <= self.ramp_steps {
-            start_us.saturating_add(ceil_us(Real::sqrt(2.0 * kf / self.accel)))
-        } else if kf >= n - self.ramp_steps {
-            let left = Real::max(n - kf, 0.0);
-            end_us.saturating_sub(floor_us(Real::sqrt(2.0 * left / self.accel)))
-        } else {
-            start_us.saturating_add(ceil_us(self.t_ramp_s + (kf - self.ramp_steps) / self.peak))
-        }
-    }
-}
-
-/// Seconds to whole microseconds, rounded up; NaN and negatives give 0, huge values saturate.
-fn ceil_us(seconds: f32) -> u64 {
-    let us = seconds * 1e6;
-    (-Real::floor(-us)) as u64
-}
-
-fn floor_us(seconds: f32) -> u64 {
-    Real::floor(seconds * 1e6) as u64
 }
 
 #[derive(Clone, Copy, Debug)]
 struct ActiveMove {
-    axes: [AxisRun; AXIS_COUNT],
+    gens: [SegmentGen; AXIS_COUNT],
+    /// The per-step path: the segment each axis plays, and whether its scheduled step is still
+    /// to come.
+    play: [Playback; AXIS_COUNT],
+    due: [bool; AXIS_COUNT],
     /// Arms whose steps widen the separation go first, so two arm steps due at the same instant
     /// never pass through a narrower pose than either end.
     order: [Axis; AXIS_COUNT],
     start_us: u64,
+    /// The last step's instant (rounded up).
     end_us: u64,
+    target: Steps,
+    /// Segment boards: when the loop must come back to refill a ring.
+    refill_us: u64,
+}
+
+impl ActiveMove {
+    /// The microsecond of a tick of this move (ticks are the low 32 bits of microseconds).
+    fn us(&self, t: u32) -> u64 {
+        self.start_us
+            .saturating_add(u64::from(t.wrapping_sub(tick(self.start_us))))
+    }
 }
 
 /// The axis positions and the move in progress. The only code that changes a step position.
@@ -107,19 +90,43 @@ impl Stepper {
         !self.active.is_empty()
     }
 
-    /// Stop every axis at once (limit switch, homing switch found, abort of homing).
+    /// Forget the move in progress without asking the board what it made (the position is no
+    /// longer trusted: limit switch and homing faults, which need re-homing). Prefer
+    /// [`Stepper::stop`].
     pub fn halt(&mut self) {
         self.active.clear();
     }
 
-    /// The next instant a step is due, if a move runs.
+    /// Stop every axis at once (limit switch, homing switch found, abort of homing); on a segment
+    /// board the queued steps are dropped and the position is what was really made.
+    pub fn stop<H: Steppers>(&mut self, hal: &mut H) {
+        let Some(m) = self.active.first() else { return };
+        if H::SEGMENTS {
+            // The position stays at the move's start until its end: add what was made.
+            let left = hal.drop_queued();
+            for ((p, g), l) in self.position.iter_mut().zip(m.gens.iter()).zip(left) {
+                let made = g.generated().saturating_sub(l) as i32;
+                *p = p.wrapping_add(if g.profile.increasing { made } else { -made });
+            }
+        }
+        self.active.clear();
+    }
+
+    /// The next instant the stepper has work, if a move runs: a step (per-step path), or a ring
+    /// to refill, a look at the switches and the move's end (segment boards).
     pub fn next_due_us(&self) -> Option<u64> {
         let m = self.active.first()?;
-        m.axes.iter().filter(|r| r.done < r.total).map(|r| r.due_us).min()
+        let steps = (0..AXIS_COUNT)
+            .filter(|&i| m.due.get(i).copied().unwrap_or(false))
+            .filter_map(|i| m.play.get(i).map(|p| m.us(p.tick())))
+            .min();
+        Some(steps.map_or(m.refill_us.min(m.end_us), |s| s.min(m.end_us)))
     }
 
     /// Start the synchronised move to `target` at `now_us`, every axis limited to `speed_scale` of
-    /// its configured maximum speed (1 for plan moves, less for homing).
+    /// its configured maximum speed (1 for plan moves, less for homing). With a `guard`, both
+    /// ends must keep the arms apart: the move is a straight line in joint space, so the
+    /// separation changes monotonically in between (`gonio_shared::motion`).
     pub fn start<H: Steppers>(
         &mut self,
         hal: &mut H,
@@ -127,6 +134,7 @@ impl Stepper {
         target: Steps,
         cfg: &InstrumentConfig<f32>,
         speed_scale: f32,
+        guard: Option<&SeparationGuard>,
     ) -> Result<(), StepError> {
         let mut limits = *cfg;
         for a in limits.axes.iter_mut() {
@@ -155,45 +163,58 @@ impl Stepper {
         if !(ok(unit.accel) && ok(unit.peak_speed) && unit.duration().is_finite()) {
             return Err(StepError::BadProfile);
         }
-        let start_us = now_us;
-        let end_us = now_us.saturating_add(ceil_us(unit.duration()));
-        let mut axes = [AxisRun::default(); AXIS_COUNT];
-        for (run, &(total, increasing)) in axes.iter_mut().zip(counts.iter()) {
-            let n = total as f32;
-            run.total = total;
-            run.increasing = increasing;
-            run.accel = unit.accel * n;
-            run.peak = unit.peak_speed * n;
-            run.t_ramp_s = unit.t_ramp;
-            run.ramp_steps = 0.5 * run.accel * unit.t_ramp * unit.t_ramp;
-            if total > 0 {
-                run.due_us = run.due(1, start_us, end_us);
+        if let Some(g) = guard {
+            let arms = |s: &Steps| (s[Axis::Light.index()], s[Axis::Detector.index()]);
+            let ((l0, d0), (l1, d1)) = (arms(&self.position), arms(&target));
+            if !(g.allows(l0, d0) && g.allows(l1, d1)) {
+                return Err(StepError::Blocked);
             }
+        }
+        let start = u64::from(tick(now_us)) << 32;
+        let mut end = 0u64;
+        let mut gens = [SegmentGen::default(); AXIS_COUNT];
+        for (g, &(total, increasing)) in gens.iter_mut().zip(counts.iter()) {
+            let profile = AxisProfile::new(&unit, total, increasing);
+            if total > 0 {
+                end = end.max(profile.duration());
+            }
+            *g = SegmentGen::new(profile, start);
         }
         for axis in AXES {
-            if let Some(r) = axes.get(axis.index()).filter(|r| r.total > 0) {
-                hal.set_direction(axis, r.increasing);
+            if let Some(&(_, increasing)) = counts.get(axis.index()).filter(|c| c.0 > 0) {
+                hal.set_direction(axis, increasing);
             }
         }
-        let light_widens = axes.get(Axis::Light.index()).is_none_or(|r| r.increasing);
+        let light_widens = counts.get(Axis::Light.index()).is_none_or(|c| c.1);
         let order = if light_widens {
             [Axis::Light, Axis::Detector, Axis::Tilt, Axis::Azimuth]
         } else {
             [Axis::Detector, Axis::Light, Axis::Tilt, Axis::Azimuth]
         };
-        self.active
-            .push(ActiveMove {
-                axes,
-                order,
-                start_us,
-                end_us,
-            })
-            .map_err(|_| StepError::BadProfile)
+        let mut m = ActiveMove {
+            gens,
+            play: [Playback::new(); AXIS_COUNT],
+            due: [false; AXIS_COUNT],
+            order,
+            start_us: now_us,
+            end_us: now_us.saturating_add(end.div_ceil(ONE_TICK)),
+            target,
+            refill_us: now_us,
+        };
+        if H::SEGMENTS {
+            fill(&mut m, hal, now_us);
+        } else {
+            for i in 0..AXIS_COUNT {
+                load_next(&mut m, i);
+            }
+        }
+        self.active.push(m).map_err(|_| StepError::BadProfile)
     }
 
-    /// Emit every step due at `now_us` (at most one per axis: a late call catches up on the next
-    /// ones instead of bursting). With a `guard`, an arm step that would break the separation
-    /// invariant is not emitted and the move stops with [`StepError::Blocked`].
+    /// Segment boards: refill the rings and end the move at its last step. Per-step path: emit
+    /// every step due at `now_us` (at most one per axis: a late call catches up on the next ones
+    /// instead of bursting); with a `guard`, an arm step that would break the separation invariant
+    /// is not emitted and the move stops with [`StepError::Blocked`].
     pub fn poll<H: Steppers>(
         &mut self,
         hal: &mut H,
@@ -203,14 +224,25 @@ impl Stepper {
         let Some(m) = self.active.first_mut() else {
             return Ok(());
         };
+        if H::SEGMENTS {
+            fill(m, hal, now_us);
+            if now_us >= m.end_us && m.gens.iter().all(SegmentGen::is_done) {
+                self.position = m.target;
+                self.active.clear();
+            }
+            return Ok(());
+        }
         for axis in m.order {
             let i = axis.index();
-            let Some(run) = m.axes.get_mut(i) else { continue };
-            if run.done >= run.total || now_us < run.due_us {
+            let (Some(&due), Some(p)) = (m.due.get(i), m.play.get(i)) else {
+                continue;
+            };
+            if !due || now_us < m.us(p.tick()) {
                 continue;
             }
             let Some(&here) = self.position.get(i) else { continue };
-            let next = if run.increasing {
+            let increasing = m.gens.get(i).is_some_and(|g| g.profile.increasing);
+            let next = if increasing {
                 here.saturating_add(1)
             } else {
                 here.saturating_sub(1)
@@ -230,14 +262,50 @@ impl Stepper {
             if let Some(p) = self.position.get_mut(i) {
                 *p = next;
             }
-            run.done += 1;
-            if run.done < run.total {
-                run.due_us = run.due(run.done + 1, m.start_us, m.end_us).max(run.due_us);
+            let scheduled = m.play.get_mut(i).is_some_and(Playback::schedule);
+            if !scheduled {
+                load_next(m, i);
             }
         }
-        if m.axes.iter().all(|r| r.done >= r.total) {
+        if !m.due.iter().any(|&d| d) {
             self.active.clear();
         }
         Ok(())
     }
+}
+
+/// Per-step path: play axis `i`'s next segment (or mark it done).
+fn load_next(m: &mut ActiveMove, i: usize) {
+    let seg = m.gens.get_mut(i).and_then(SegmentGen::next_segment);
+    if let (Some(p), Some(d)) = (m.play.get_mut(i), m.due.get_mut(i)) {
+        *d = seg.is_some();
+        if let Some(s) = seg {
+            p.load(&s);
+        }
+    }
+}
+
+/// Segment boards: queue segments while the rings have room; note when to come back.
+fn fill<H: Steppers>(m: &mut ActiveMove, hal: &mut H, now_us: u64) {
+    let mut refill = u64::MAX;
+    for axis in AXES {
+        let Some(g) = m.gens.get_mut(axis.index()) else {
+            continue;
+        };
+        let mut room = hal.segment_room(axis);
+        while room > 0 {
+            let Some(seg) = g.next_segment() else { break };
+            hal.queue_segment(axis, seg);
+            room -= 1;
+        }
+        if !g.is_done() {
+            let until = (g.generated_until() >> 32) as u32;
+            let at = m
+                .start_us
+                .saturating_add(u64::from(until.wrapping_sub(tick(m.start_us))));
+            // A full ring that ends this soon: come back a little later, not at once.
+            refill = refill.min(at.max(now_us.saturating_add(REFILL_RETRY_US)));
+        }
+    }
+    m.refill_us = refill.min(now_us.saturating_add(SWITCH_POLL_US));
 }

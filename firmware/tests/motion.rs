@@ -36,7 +36,7 @@ fn run_move(cfg: &InstrumentConfig<f32>, start: [i32; 4], target: [i32; 4], t0: 
     for a in AXES {
         st.set_position(a, start[a.index()]);
     }
-    st.start(&mut hal, t0, target, cfg, 1.0).unwrap();
+    st.start(&mut hal, t0, target, cfg, 1.0, None).unwrap();
     let mut polls = 0u64;
     while let Some(t) = st.next_due_us() {
         hal.now = hal.now.max(t);

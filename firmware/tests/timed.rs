@@ -1,5 +1,5 @@
 //! The board's step path, simulated: the controller runs ahead of real time through `QueuedHal`,
-//! a simulated timer interrupt plays the `StepQueue` back at its wake-ups, and the motors' true
+//! simulated compare channels play the `StepQueue`'s segments back at their compare ticks, and the motors' true
 //! positions come only from the played STEP edges and DIR levels. Switches close on those true
 //! positions and raise the EXTI trip as the board's interrupt does.
 //!
@@ -176,7 +176,7 @@ impl Sim {
         }
         if closed_now != 0 {
             // The EXTI interrupt: a closing edge.
-            self.hal.queue.with(|q| q.trip(closed_now, tick(now)));
+            self.hal.queue.with(|q| q.trip(closed_now));
         }
     }
 
@@ -199,7 +199,8 @@ impl Sim {
                 force = None;
                 let bit = 1u8 << axis.index();
                 self.hal.board.forced |= bit;
-                self.hal.queue.with(|q| q.trip(bit, tick(at)));
+                let _ = at;
+                self.hal.queue.with(|q| q.trip(bit));
                 continue;
             }
             if isr.is_some_and(|w| w <= t) {
@@ -329,8 +330,11 @@ fn a_limit_switch_stops_playback_at_the_instant_it_closes_and_faults() {
     // Let the first move get going, then close the tilt switch mid-move.
     let t0 = sim.hal.board.real;
     sim.run_until(t0 + 300_000, None);
-    let queued = sim.hal.queue.with(|q| q.len());
-    assert!(queued > 20, "only {queued} events queued");
+    let queued = sim
+        .hal
+        .queue
+        .with(|q| (0..4).map(|i| 16 - q.room(AXES[i])).sum::<usize>());
+    assert!(queued > 4, "only {queued} segments queued");
     let moving_edges = sim.edges.len();
     assert!(moving_edges > 0 && sim.dev.controller().is_moving());
     let t_close = sim.hal.board.real + 1;
@@ -339,7 +343,14 @@ fn a_limit_switch_stops_playback_at_the_instant_it_closes_and_faults() {
     // On the board the switch interrupt can fire in the middle of a poll: what that poll queues
     // after the trip belongs to the halted move and must never play.
     for axis in [Axis::Light, Axis::Detector] {
-        gonio_firmware::Steppers::step(&mut sim.hal, axis);
+        let seg = gonio_firmware::segment::Segment {
+            t0: u64::from(tick(t_close)) << 32,
+            interval: 100 << 32,
+            add: 0,
+            count: 5,
+            increasing: true,
+        };
+        gonio_firmware::Steppers::queue_segment(&mut sim.hal, axis, seg);
     }
     sim.run_until(u64::MAX, None);
     assert!(

@@ -5,10 +5,11 @@
 //! - STEP/DIR per axis on GPIOB (PB0, PB1, PB6, PB7 / PB12..PB15), so one write of GPIOB's BSRR
 //!   applies everything the step timer decided at an instant; ENABLE driven active (low) from boot.
 //! - TIM2 (32-bit, 1 MHz, counting the same microseconds as embassy-time) plays the `StepQueue`:
-//!   its capture/compare 1 interrupt runs `StepQueue::service` at each wake-up.
+//!   one compare channel per axis (CC1..CC4), whose interrupt makes that axis's STEP rise or fall
+//!   and schedules its next edge (`StepQueue::on_compare`).
 //! - Home/limit switches on EXTI lines 1, 2, 3 and 5 (falling edge = closing, pull-ups): the EXTI
-//!   interrupt calls `StepQueue::trip`, which stops playback at once if the controller armed that
-//!   switch. Levels are read with `ExtiInput::is_low` for the controller's own checks.
+//!   interrupt calls `StepQueue::trip`, which stops every channel at once (compares disarmed, STEP
+//!   pins forced low) if the controller armed that switch. Levels are read with `ExtiInput::is_low` for the controller's own checks.
 //! - The detector is the **simple internal-ADC driver**: ADC1 on PA4..PA7, read with blocking
 //!   conversions once the exposure time has elapsed (see [`BoardIo::poll_readout`]). The ADS131M04
 //!   on SPI1 is the planned precision option (README).
@@ -24,7 +25,7 @@ use embassy_stm32::peripherals::ADC1;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_time::Instant;
-use gonio_firmware::step_queue::{Pins, StepQueue};
+use gonio_firmware::step_queue::{reached, Pins, StepQueue};
 use gonio_firmware::timed::{tick, SharedQueue};
 use gonio_firmware::{Clock, Detector, Readout, Switches};
 use gonio_shared::Axis;
@@ -66,43 +67,54 @@ fn apply(p: Pins) {
     }
 }
 
-/// Point TIM2's compare 1 at the queue's next wake-up (or switch it off). A wake-up already due
-/// (or due before the write lands) is forced with a software compare event, so none is missed
-/// until the counter wraps.
-fn arm(q: &StepQueue) {
-    arm_at(q.next_wake(pac::TIM2.cnt().read()));
-}
+/// TIM2's compare-interrupt enable and flag bits of the four channels (CC1..CC4 = bits 1..4).
+const CC_BITS: u32 = 0b1_1110;
 
-fn arm_at(wake: Option<u32>) {
+/// Point channel `i`'s compare at `tick`. A tick already due (or due before the write lands) is
+/// forced with a software compare event, so none is missed until the counter wraps.
+#[inline(always)]
+fn compare_at(i: usize, tick: u32) {
     let t = pac::TIM2;
-    match wake {
-        Some(w) => {
-            t.ccr(0).write_value(w);
-            t.dier().modify(|d| d.set_ccie(0, true));
-            if t.cnt().read().wrapping_sub(w) < 1 << 31 {
-                t.egr().write(|e| e.set_ccg(0, true));
-            }
-        }
-        None => t.dier().modify(|d| d.set_ccie(0, false)),
+    t.ccr(i).write_value(tick);
+    if reached(tick, t.cnt().read()) {
+        t.egr().write(|e| e.set_ccg(i, true));
     }
 }
 
-/// The queue behind the critical-section mutex; every access re-arms the timer, so an event the
-/// loop just queued into an idle queue gets its wake-up.
+/// After the loop touched the queue: lower the STEP pins a stop left high, set the DIR pins of
+/// the channels it started and arm their compares, and enable exactly the running channels.
+fn sync_channels(q: &mut StepQueue) {
+    let t = pac::TIM2;
+    let lowered = q.take_lowered();
+    let kicked = q.take_kicked();
+    let dir = q.dir_levels();
+    apply(Pins {
+        step_low: lowered,
+        dir_increasing: kicked & dir,
+        dir_decreasing: kicked & !dir,
+        step_high: 0,
+    });
+    // rc_w0: clear stale compare flags of the started channels only.
+    t.sr().write_value(pac::timer::regs::SrGp16(!(u32::from(kicked) << 1)));
+    for i in 0..4 {
+        if kicked & (1 << i) != 0 {
+            compare_at(i, q.compare_tick(i));
+        }
+    }
+    t.dier()
+        .modify(|d| d.0 = (d.0 & !CC_BITS) | (u32::from(q.running()) << 1));
+}
+
+/// The queue behind the critical-section mutex; every access re-synchronises the channels, so a
+/// segment the loop queued for an idle axis starts it.
 pub struct CsQueue;
 
 impl SharedQueue for CsQueue {
-    /// Re-arms the timer only if it may be idle (empty queue, or events held by a trip): events are
-    /// queued in time order, so one added behind others never needs an earlier wake-up than the
-    /// one armed. Saves a `next_wake` per queued step on the loop side.
     fn with<R>(&self, f: impl FnOnce(&mut StepQueue) -> R) -> R {
         STEP_QUEUE.lock(|cell| {
             let mut q = queue(cell);
-            let idle = q.is_empty() || q.tripped() != 0;
             let r = f(&mut q);
-            if idle || q.tripped() != 0 {
-                arm(&q);
-            }
+            sync_channels(&mut q);
             r
         })
     }
@@ -148,16 +160,28 @@ pub fn start_step_timer(tim2: embassy_stm32::Peri<'static, embassy_stm32::periph
     }
 }
 
+/// One compare channel per axis (CC1..CC4 = light, detector, tilt, azimuth): each event is a
+/// rise or a fall of that axis's STEP pin (`StepQueue::on_compare`), then the channel's next
+/// compare, or the channel is disarmed when its ring ran out.
 #[interrupt]
 fn TIM2() {
     let t = pac::TIM2;
-    // rc_w0: writing 0 clears CC1IF only.
-    t.sr().write_value(pac::timer::regs::SrGp16(!(1 << 1)));
+    let flags = t.sr().read().0 & t.dier().read().0 & CC_BITS;
+    // rc_w0: writing 0 clears only the flags being served.
+    t.sr().write_value(pac::timer::regs::SrGp16(!flags));
     STEP_QUEUE.lock(|cell| {
         let mut q = queue(cell);
-        let (pins, wake) = q.service(t.cnt().read());
-        apply(pins);
-        arm_at(wake);
+        let mut pending = flags >> 1;
+        while pending != 0 {
+            let i = pending.trailing_zeros() as usize;
+            pending &= pending - 1;
+            let (pins, next) = q.on_compare(i, t.cnt().read());
+            apply(pins);
+            match next {
+                Some(tick) => compare_at(i, tick),
+                None => t.dier().modify(|d| d.set_ccie(i, false)),
+            }
+        }
     });
 }
 
@@ -170,8 +194,12 @@ fn switch_closed_irq(lines: u32) {
     let closed = ((pending >> 1) & 0b0111) as u8 | ((pending >> 2) & 0b1000) as u8;
     STEP_QUEUE.lock(|cell| {
         let mut q = queue(cell);
-        apply(q.trip(closed, pac::TIM2.cnt().read()));
-        arm(&q);
+        let pins = q.trip(closed);
+        if q.tripped() != 0 {
+            // Every channel stops at once; its STEP pin is forced low below.
+            pac::TIM2.dier().modify(|d| d.0 &= !CC_BITS);
+        }
+        apply(pins);
     });
 }
 

@@ -1,6 +1,6 @@
 //! The simulated board behind the real firmware, driven through the board's own step path: the
-//! controller runs ahead of real time in [`QueuedHal`] and its STEP/DIR events are played back from
-//! the [`StepQueue`] as the STM32's timer interrupt plays them. The board has a clock the runner
+//! controller runs ahead of real time in [`QueuedHal`] and its step segments are played back from
+//! the [`StepQueue`] as the STM32's compare channels play them. The board has a clock the runner
 //! advances, motors whose outputs go through the backlash dead band, home switches (a closing one
 //! raises the EXTI trip) and a detector that reads the scene's material at the pose the outputs reached.
 //!
@@ -48,7 +48,7 @@ pub fn sim_hal(model: Arc<SimModel>) -> SimHal {
     QueuedHal::new(SimBoard::new(model), RefCell::new(StepQueue::new()))
 }
 
-/// When the step timer interrupt next fires, as board time; `None` while the queue is idle.
+/// When a compare channel next fires, as board time; `None` while every channel is idle.
 pub fn timer_wake(hal: &SimHal) -> Option<u64> {
     let now = hal.board.now_us;
     let wake = hal.queue.with(|q| q.next_wake(tick(now)))?;
@@ -61,7 +61,7 @@ pub fn timer_wake(hal: &SimHal) -> Option<u64> {
     })
 }
 
-/// The step timer interrupt at the board's time: play what is due, and raise the EXTI trip for
+/// The compare interrupts at the board's time: play what is due, and raise the EXTI trip for
 /// every switch that the played steps closed.
 pub fn service_timer(hal: &mut SimHal) {
     let now = tick(hal.board.now_us);
@@ -69,7 +69,7 @@ pub fn service_timer(hal: &mut SimHal) {
     let closed = hal.board.apply(pins);
     if closed != 0 {
         let latched = hal.queue.with(|q| {
-            q.trip(closed, now);
+            q.trip(closed);
             q.tripped()
         });
         hal.board.fault_seen(latched);
@@ -343,6 +343,7 @@ mod tests {
 #[cfg(test)]
 mod step_path_tests {
     use super::*;
+    use gonio_firmware::segment::Segment;
     use gonio_firmware::Steppers;
     use std::path::Path;
 
@@ -352,7 +353,18 @@ mod step_path_tests {
         sim_hal(Arc::new(model))
     }
 
-    /// Play the timer until the queue is idle.
+    /// `count` steps 100 us apart from t = 10 us.
+    fn segment(count: u32, increasing: bool) -> Segment {
+        Segment {
+            t0: 10 << 32,
+            interval: 100 << 32,
+            add: 0,
+            count,
+            increasing,
+        }
+    }
+
+    /// Play the channels until they are idle.
     fn play(hal: &mut SimHal) {
         while let Some(w) = timer_wake(hal) {
             hal.board.now_us = hal.board.now_us.max(w);
@@ -361,12 +373,9 @@ mod step_path_tests {
     }
 
     #[test]
-    fn queued_steps_move_the_motors_only_when_the_timer_plays_them() {
+    fn queued_steps_move_the_motors_only_when_the_channel_plays_them() {
         let mut hal = hal();
-        hal.set_direction(Axis::Tilt, false);
-        for _ in 0..5 {
-            hal.step(Axis::Tilt);
-        }
+        hal.queue_segment(Axis::Tilt, segment(5, false));
         assert_eq!(hal.board.steps_taken, 0, "queued, not played");
         play(&mut hal);
         assert_eq!(hal.board.steps_taken, 5);
@@ -374,7 +383,7 @@ mod step_path_tests {
     }
 
     #[test]
-    fn an_armed_switch_that_a_played_step_closes_trips_the_queue() {
+    fn an_armed_switch_that_a_played_step_closes_trips_the_channels() {
         let mut hal = hal();
         let home = match hal.board.switches[Axis::Light.index()] {
             Switch::AtOrAbove(p) => p,
@@ -382,16 +391,14 @@ mod step_path_tests {
         };
         hal.board.motor[Axis::Light.index()] = home - 2;
         hal.queue.with(|q| q.set_armed(1 << Axis::Light.index()));
-        hal.set_direction(Axis::Light, true);
-        for _ in 0..5 {
-            hal.step(Axis::Light);
-        }
+        hal.queue_segment(Axis::Light, segment(5, true));
         play(&mut hal);
         assert_eq!(
             hal.board.motor[Axis::Light.index()],
             home,
             "playback stops on the closing step"
         );
-        assert_eq!(hal.queue.with(|q| q.take_trip()), 1 << Axis::Light.index());
+        assert_eq!(hal.queue.with(|q| q.tripped()), 1 << Axis::Light.index());
+        assert_eq!(hal.drop_queued()[Axis::Light.index()], 3, "the steps never made");
     }
 }

@@ -3,7 +3,7 @@
 //!
 //! ## Step path
 //! As on the STM32: the controller loop is `QueuedHal::run` (the controller ahead of real time,
-//! steps queued), and a simulated step timer interrupt plays the `StepQueue` back at its wake-ups
+//! segments queued), and simulated compare channels play the `StepQueue` back at their ticks
 //! ([`hal::service_timer`]); the motors move only on played steps.
 //!
 //! ## Time
