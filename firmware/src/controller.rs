@@ -180,7 +180,7 @@ impl Controller {
     /// axis's index sensor closes once a turn); none while nothing moves or homing moves away from
     /// a switch (a bouncing contact must not stop a back-off or park).
     pub fn stop_mask(&self) -> u8 {
-        let Some(cfg) = self.kin.first().map(|k| *k.config()) else {
+        let Some(cfg) = self.kin.first().map(Kinematics::config) else {
             return 0;
         };
         if self.state == ControllerState::Homing {
@@ -201,7 +201,7 @@ impl Controller {
 
     /// Would a board-side stop on these switches halt a move this controller has not stopped?
     pub fn halts_on(&self, closed: u8) -> bool {
-        let Some(cfg) = self.kin.first().map(|k| *k.config()) else {
+        let Some(cfg) = self.kin.first().map(Kinematics::config) else {
             return false;
         };
         if self.state == ControllerState::Homing {
@@ -502,7 +502,7 @@ impl Controller {
 
     /// Switches first (a closed switch stops everything before another step), then due steps.
     fn drive_motion<H: Hal>(&mut self, hal: &mut H, now: u64) {
-        let Some(cfg) = self.kin.first().map(|k| *k.config()) else {
+        let Some(cfg) = self.kin.first().map(Kinematics::config) else {
             self.stepper.stop(hal);
             return;
         };
@@ -635,7 +635,7 @@ impl Controller {
 
     /// One step of the per-direction sequence. `true` if it moved on without waiting.
     fn advance_scan<H: Hal>(&mut self, hal: &mut H, now: u64) -> bool {
-        let Some(cfg) = self.kin.first().map(|k| *k.config()) else {
+        let Some(cfg) = self.kin.first().map(Kinematics::config) else {
             return false;
         };
         match self.phase {

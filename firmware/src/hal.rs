@@ -26,9 +26,9 @@ pub trait Steppers {
     /// plays the same segments in software and calls `step` at each step's instant (the mock HAL).
     const SEGMENTS: bool = false;
 
-    /// Free segment slots of `axis` (segment boards only).
-    fn segment_room(&self, _axis: Axis) -> usize {
-        0
+    /// Free segment slots per axis (segment boards only).
+    fn segment_room(&self) -> [usize; AXIS_COUNT] {
+        [0; AXIS_COUNT]
     }
 
     /// Queue a segment of `axis` behind the ones already queued (segment boards only).

@@ -52,6 +52,20 @@ impl Pins {
     }
 }
 
+/// What one compare event did to its channel's STEP pin, and the channel's next compare tick.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Edge {
+    /// STEP rose; the fall is due at the tick.
+    Rise(u32),
+    /// STEP fell; the next step rises at the tick.
+    Fall(u32),
+    /// STEP fell and the next segment turned the axis round: set its DIR pin from
+    /// [`StepQueue::dir_levels`] now (the next rise is an interval away).
+    FallDir(u32),
+    /// STEP fell and the channel has nothing left: disarm it.
+    Ended,
+}
+
 /// No room for a segment: the producer checks [`StepQueue::room`] first, so this is a bug; counted
 /// in [`QueueStats::overruns`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -66,7 +80,7 @@ pub struct QueueStats {
     pub flushed: u32,
     /// Pushes refused because a ring was full (must stay 0).
     pub overruns: u32,
-    /// Rising edges later than their tick (the interrupt was held up, or a ring ran dry).
+    /// Rising edges later than their tick (a compare scheduled after its tick had passed).
     pub late: u32,
 }
 
@@ -78,10 +92,13 @@ pub struct StepQueue {
     play: [Playback; AXIS_COUNT],
     /// Each channel's armed compare tick (valid while its `running` bit is set).
     compare: [u32; AXIS_COUNT],
-    /// Channels with a compare armed; STEP pins high now; a step scheduled and not yet risen.
+    /// Channels with a compare armed; STEP pins high now.
     running: u8,
     high: u8,
+    /// Channels a trip stopped with a step scheduled and not yet risen (playback resumes there).
     pending: u8,
+    /// Channels stopped by the loop since the board last disarmed their compares.
+    disarmed: u8,
     /// DIR levels (bit set = increasing).
     dir: u8,
     /// Channels started since the board last armed their compares (bit per axis).
@@ -110,6 +127,7 @@ impl StepQueue {
             running: 0,
             high: 0,
             pending: 0,
+            disarmed: 0,
             dir: 0,
             kicked: 0,
             lowered: 0,
@@ -131,13 +149,18 @@ impl StepQueue {
             .map_or(0, |r| SEGMENT_RING.saturating_sub(r.len()))
     }
 
+    /// Free segment slots of every ring, in axis order.
+    pub fn rooms(&self) -> [usize; AXIS_COUNT] {
+        self.rings.each_ref().map(|r| SEGMENT_RING.saturating_sub(r.len()))
+    }
+
     pub fn stats(&self) -> QueueStats {
         self.stats
     }
 
     /// Is anything queued or playing?
     pub fn is_idle(&self) -> bool {
-        self.running | self.pending == 0 && self.rings.iter().all(Deque::is_empty)
+        (self.running | self.pending) == 0 && self.rings.iter().all(Deque::is_empty)
     }
 
     /// Is playback stopped by a trip the controller has not taken yet?
@@ -187,14 +210,15 @@ impl StepQueue {
             };
             let Some(seg) = ring.pop_front() else { return };
             play.load(&seg);
-            self.pending |= b;
             self.dir = if seg.increasing { self.dir | b } else { self.dir & !b };
         }
+        self.pending &= !b;
         if let (Some(c), Some(p)) = (self.compare.get_mut(i), self.play.get(i)) {
             *c = p.tick();
         }
         self.running |= b;
         self.kicked |= b;
+        self.disarmed &= !b;
     }
 
     /// Channels started since the last call (bit per axis): the board arms their compares.
@@ -207,9 +231,19 @@ impl StepQueue {
         core::mem::take(&mut self.lowered)
     }
 
-    /// Channels with a compare armed (bit per axis): the board disarms the others.
+    /// STEP pins high now (bit per axis).
+    pub fn high(&self) -> u8 {
+        self.high
+    }
+
+    /// Channels with a compare armed (bit per axis).
     pub fn running(&self) -> u8 {
         self.running
+    }
+
+    /// Channels the loop stopped since the last call (bit per axis): the board disarms them.
+    pub fn take_disarmed(&mut self) -> u8 {
+        core::mem::take(&mut self.disarmed)
     }
 
     /// Channel `i`'s armed compare tick.
@@ -217,52 +251,52 @@ impl StepQueue {
         self.compare.get(i).copied().unwrap_or(0)
     }
 
-    /// Channel `i`'s compare event at `now`: a rise or a fall. Returns the pins to change and the
-    /// channel's next compare tick, `None` when it has nothing left (disarm it).
+    /// Channel `i`'s compare event: a rise or a fall of its STEP pin, and its next compare tick.
     #[inline(always)]
-    pub fn on_compare(&mut self, i: usize, now: u32) -> (Pins, Option<u32>) {
+    pub fn on_compare(&mut self, i: usize) -> Edge {
         let b = 1u8 << i;
         let (Some(play), Some(compare)) = (self.play.get_mut(i), self.compare.get_mut(i)) else {
-            return (Pins::default(), None);
+            return Edge::Ended;
         };
         if self.high & b == 0 {
             self.high |= b;
-            self.pending &= !b;
             self.stats.steps = self.stats.steps.wrapping_add(1);
-            if now != *compare {
-                self.stats.late = self.stats.late.wrapping_add(1);
-            }
             *compare = compare.wrapping_add(PULSE_TICKS);
-            return (
-                Pins {
-                    step_high: b,
-                    ..Pins::default()
-                },
-                Some(*compare),
-            );
+            return Edge::Rise(*compare);
         }
         self.high &= !b;
-        let mut pins = Pins {
-            step_low: b,
-            ..Pins::default()
-        };
         if !play.schedule() {
-            let Some(seg) = self.rings.get_mut(i).and_then(Deque::pop_front) else {
-                self.running &= !b;
-                return (pins, None);
-            };
-            play.load(&seg);
-            if (self.dir & b != 0) != seg.increasing {
-                self.dir ^= b;
-                pins = Pins {
-                    step_low: b,
-                    ..Pins::dir(b, seg.increasing)
-                };
-            }
+            return self.next_segment(i);
         }
-        self.pending |= b;
         *compare = play.tick();
-        (pins, Some(*compare))
+        Edge::Fall(*compare)
+    }
+
+    /// A fall that ended channel `i`'s segment: play the next one, or stop the channel.
+    #[inline(never)]
+    fn next_segment(&mut self, i: usize) -> Edge {
+        let b = 1u8 << i;
+        let (Some(ring), Some(play), Some(compare)) =
+            (self.rings.get_mut(i), self.play.get_mut(i), self.compare.get_mut(i))
+        else {
+            return Edge::Ended;
+        };
+        let Some(seg) = ring.pop_front() else {
+            self.running &= !b;
+            return Edge::Ended;
+        };
+        play.load(&seg);
+        *compare = play.tick();
+        if (self.dir & b != 0) != seg.increasing {
+            self.dir ^= b;
+            return Edge::FallDir(*compare);
+        }
+        Edge::Fall(*compare)
+    }
+
+    /// The board forced a compare whose tick had already passed (counted as a late step).
+    pub fn note_late(&mut self) {
+        self.stats.late = self.stats.late.wrapping_add(1);
     }
 
     /// The earliest compare among the running channels (`now` orders instants across a wrap).
@@ -284,16 +318,27 @@ impl StepQueue {
             ..Pins::default()
         };
         for i in 0..AXIS_COUNT {
-            // A fall may schedule a step due at once (a late one): play it too, bounded.
+            let b = 1u8 << i;
+            // A fall may schedule a step already due (a late one): play it too, bounded.
             for _ in 0..4 {
-                if self.running & (1 << i) == 0 || !reached(self.compare_tick(i), now) {
+                let due = self.compare_tick(i);
+                if self.running & b == 0 || !reached(due, now) {
                     break;
                 }
-                let (p, _) = self.on_compare(i, now);
-                pins.step_high |= p.step_high;
-                pins.step_low |= p.step_low;
-                pins.dir_increasing = (pins.dir_increasing & !p.dir_decreasing) | p.dir_increasing;
-                pins.dir_decreasing = (pins.dir_decreasing & !p.dir_increasing) | p.dir_decreasing;
+                let edge = self.on_compare(i);
+                if let Edge::Rise(_) = edge {
+                    pins.step_high |= b;
+                    if due != now {
+                        self.note_late();
+                    }
+                } else {
+                    pins.step_low |= b;
+                }
+                if let Edge::FallDir(_) = edge {
+                    let d = Pins::dir(b, self.dir & b != 0);
+                    pins.dir_increasing = (pins.dir_increasing & !b) | d.dir_increasing;
+                    pins.dir_decreasing = (pins.dir_decreasing & !b) | d.dir_decreasing;
+                }
             }
         }
         (pins, self.next_wake(now))
@@ -308,10 +353,21 @@ impl StepQueue {
             return Pins::default();
         }
         self.tripped |= hit;
+        self.pending |= self.running & !self.high;
+        // A channel stopped while high has made its step: schedule the next, as its fall would.
+        for (i, p) in self.play.iter_mut().enumerate() {
+            if self.high & self.running & (1 << i) != 0 && p.schedule() {
+                self.pending |= 1 << i;
+            }
+        }
+        // The board's loop-side sync disarms and lowers them too, for a trip found by polling.
+        self.disarmed |= self.running;
         self.running = 0;
         self.kicked = 0;
+        let high = core::mem::take(&mut self.high);
+        self.lowered |= high;
         Pins {
-            step_low: core::mem::take(&mut self.high),
+            step_low: high,
             ..Pins::default()
         }
     }
@@ -336,11 +392,13 @@ impl StepQueue {
                 continue;
             };
             let queued: u32 = ring.iter().map(|s| s.count).sum();
-            *l = queued + play.left() + u32::from(self.pending & b != 0);
+            let scheduled = (self.pending | (self.running & !self.high)) & b != 0;
+            *l = queued + play.left() + u32::from(scheduled);
             ring.clear();
             *play = Playback::new();
         }
         self.stats.flushed = self.stats.flushed.wrapping_add(left.iter().sum::<u32>());
+        self.disarmed |= self.running;
         self.running = 0;
         self.pending = 0;
         self.kicked = 0;

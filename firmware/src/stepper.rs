@@ -11,9 +11,6 @@ use gonio_shared::separation::SeparationGuard;
 use gonio_shared::Axis;
 use heapless::Vec;
 
-/// While a segment board plays a move, the controller still looks at its switches and the host
-/// this often (every poll costs ~2,000 instructions; 2 ms cost 6 more per step at full speed).
-pub const SWITCH_POLL_US: u64 = 4_000;
 /// A segment board's ring was full: look again this much later.
 const REFILL_RETRY_US: u64 = 500;
 
@@ -42,6 +39,18 @@ struct ActiveMove {
     target: Steps,
     /// Segment boards: when the loop must come back to refill a ring.
     refill_us: u64,
+    /// `Stepper::next_due_us`, kept up to date (the loop asks for it on every turn).
+    next_us: u64,
+}
+
+impl ActiveMove {
+    fn update_next(&mut self) {
+        let steps = (0..AXIS_COUNT)
+            .filter(|&i| self.due.get(i).copied().unwrap_or(false))
+            .filter_map(|i| self.play.get(i).map(|p| self.us(p.tick())))
+            .min();
+        self.next_us = steps.map_or(self.refill_us, |s| s).min(self.end_us);
+    }
 }
 
 impl ActiveMove {
@@ -115,12 +124,7 @@ impl Stepper {
     /// The next instant the stepper has work, if a move runs: a step (per-step path), or a ring
     /// to refill, a look at the switches and the move's end (segment boards).
     pub fn next_due_us(&self) -> Option<u64> {
-        let m = self.active.first()?;
-        let steps = (0..AXIS_COUNT)
-            .filter(|&i| m.due.get(i).copied().unwrap_or(false))
-            .filter_map(|i| m.play.get(i).map(|p| m.us(p.tick())))
-            .min();
-        Some(steps.map_or(m.refill_us.min(m.end_us), |s| s.min(m.end_us)))
+        self.active.first().map(|m| m.next_us)
     }
 
     /// Start the synchronised move to `target` at `now_us`, every axis limited to `speed_scale` of
@@ -200,13 +204,16 @@ impl Stepper {
             end_us: now_us.saturating_add(end.div_ceil(ONE_TICK)),
             target,
             refill_us: now_us,
+            next_us: now_us,
         };
         if H::SEGMENTS {
             fill(&mut m, hal, now_us);
+            m.next_us = m.refill_us.min(m.end_us);
         } else {
             for i in 0..AXIS_COUNT {
                 load_next(&mut m, i);
             }
+            m.update_next();
         }
         self.active.push(m).map_err(|_| StepError::BadProfile)
     }
@@ -226,6 +233,7 @@ impl Stepper {
         };
         if H::SEGMENTS {
             fill(m, hal, now_us);
+            m.next_us = m.refill_us.min(m.end_us);
             if now_us >= m.end_us && m.gens.iter().all(SegmentGen::is_done) {
                 self.position = m.target;
                 self.active.clear();
@@ -267,6 +275,7 @@ impl Stepper {
                 load_next(m, i);
             }
         }
+        m.update_next();
         if !m.due.iter().any(|&d| d) {
             self.active.clear();
         }
@@ -288,11 +297,11 @@ fn load_next(m: &mut ActiveMove, i: usize) {
 /// Segment boards: queue segments while the rings have room; note when to come back.
 fn fill<H: Steppers>(m: &mut ActiveMove, hal: &mut H, now_us: u64) {
     let mut refill = u64::MAX;
-    for axis in AXES {
+    let rooms = hal.segment_room();
+    for (axis, mut room) in AXES.into_iter().zip(rooms) {
         let Some(g) = m.gens.get_mut(axis.index()) else {
             continue;
         };
-        let mut room = hal.segment_room(axis);
         while room > 0 {
             let Some(seg) = g.next_segment() else { break };
             hal.queue_segment(axis, seg);
@@ -307,5 +316,5 @@ fn fill<H: Steppers>(m: &mut ActiveMove, hal: &mut H, now_us: u64) {
             refill = refill.min(at.max(now_us.saturating_add(REFILL_RETRY_US)));
         }
     }
-    m.refill_us = refill.min(now_us.saturating_add(SWITCH_POLL_US));
+    m.refill_us = refill;
 }

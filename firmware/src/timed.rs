@@ -6,13 +6,18 @@ pub use crate::segment::tick;
 use crate::segment::Segment;
 use crate::step_queue::StepQueue;
 use crate::Device;
-use gonio_shared::instrument::AXIS_COUNT;
+use gonio_shared::instrument::{AXES, AXIS_COUNT};
 use gonio_shared::Axis;
 
 /// How far ahead of real time the controller runs during a move: segments are generated at least
 /// this long before their first step is due, far longer than any pause of the loop (a full plan
 /// chunk's reachability checks, the detector readout).
 pub const LOOKAHEAD_US: u64 = 2_000;
+/// During a move the loop reads the armed switches' levels at least this often, besides their
+/// EXTI interrupts (a switch already closed, or an edge the interrupt missed), and stops the
+/// channels as a trip would. Reading four pins costs ~50 instructions; running the whole
+/// controller this often would cost ~1,000 (about 25 instructions per step at full speed).
+pub const SWITCH_POLL_US: u64 = 4_000;
 /// Polls per `run`, so one turn of the loop is bounded; `run` asks to be called again at once if
 /// it stopped on this budget.
 pub const POLLS_PER_RUN: usize = 64;
@@ -34,6 +39,9 @@ pub struct QueuedHal<B, Q> {
     pub queue: Q,
     /// The schedule clock the controller sees.
     now_us: u64,
+    /// The switches that stop playback (as last armed), and when to read their levels next.
+    armed: u8,
+    switch_poll_us: u64,
 }
 
 impl<B, Q> QueuedHal<B, Q> {
@@ -42,6 +50,8 @@ impl<B, Q> QueuedHal<B, Q> {
             board,
             queue,
             now_us: 0,
+            armed: 0,
+            switch_poll_us: 0,
         }
     }
 }
@@ -53,23 +63,48 @@ impl<B: Clock + Switches + Detector, Q: SharedQueue> QueuedHal<B, Q> {
         for _ in 0..POLLS_PER_RUN {
             let real = self.board.now_us();
             self.now_us = self.now_us.max(real);
+            let moving = device.controller().is_moving();
+            if moving && real >= self.switch_poll_us {
+                self.poll_switches();
+                self.switch_poll_us = real.saturating_add(SWITCH_POLL_US);
+            }
             self.take_trip(device);
             let t = device.next_deadline_us()?;
-            let moving = device.controller().is_moving();
             let horizon = if moving {
                 real.saturating_add(LOOKAHEAD_US)
             } else {
                 real
             };
             if t > horizon {
-                return Some(if moving { t.saturating_sub(LOOKAHEAD_US) } else { t });
+                return Some(if moving {
+                    t.saturating_sub(LOOKAHEAD_US).min(self.switch_poll_us)
+                } else {
+                    t
+                });
             }
             self.now_us = self.now_us.max(t);
             device.poll(self);
-            let mask = device.stop_mask();
-            self.queue.with(|q| q.set_armed(mask));
+            self.arm(device.stop_mask());
         }
         Some(self.board.now_us())
+    }
+
+    /// An armed switch found closed stops the channels as its interrupt would have.
+    fn poll_switches(&mut self) {
+        let closed = AXES
+            .iter()
+            .filter(|a| self.armed & (1 << a.index()) != 0 && self.board.limit_closed(**a))
+            .fold(0u8, |m, a| m | 1 << a.index());
+        if closed != 0 {
+            self.queue.with(|q| q.trip(closed));
+        }
+    }
+
+    fn arm(&mut self, mask: u8) {
+        if mask != self.armed {
+            self.armed = mask;
+            self.queue.with(|q| q.set_armed(mask));
+        }
     }
 
     /// Hand a latched trip to the controller, then resume playback. If the trip halts a move the
@@ -84,11 +119,8 @@ impl<B: Clock + Switches + Detector, Q: SharedQueue> QueuedHal<B, Q> {
         if device.halts_on(tripped) {
             device.limit_tripped(self, tripped);
         }
-        let mask = device.stop_mask();
-        self.queue.with(|q| {
-            q.take_trip();
-            q.set_armed(mask);
-        });
+        self.queue.with(|q| q.take_trip());
+        self.arm(device.stop_mask());
     }
 }
 
@@ -101,8 +133,8 @@ impl<B, Q> Clock for QueuedHal<B, Q> {
 impl<B, Q: SharedQueue> Steppers for QueuedHal<B, Q> {
     const SEGMENTS: bool = true;
 
-    fn segment_room(&self, axis: Axis) -> usize {
-        self.queue.with(|q| q.room(axis))
+    fn segment_room(&self) -> [usize; AXIS_COUNT] {
+        self.queue.with(|q| q.rooms())
     }
 
     /// A full ring is counted in the queue's stats (the stepper asks for room first).

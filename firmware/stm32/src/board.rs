@@ -14,7 +14,6 @@
 //!   conversions once the exposure time has elapsed (see [`BoardIo::poll_readout`]). The ADS131M04
 //!   on SPI1 is the planned precision option (README).
 
-use core::cell::RefCell;
 use embassy_stm32::adc::{Adc, AnyAdcChannel, SampleTime};
 use embassy_stm32::exti::ExtiInput;
 use embassy_stm32::gpio::Output;
@@ -22,10 +21,8 @@ use embassy_stm32::interrupt;
 use embassy_stm32::mode::Blocking;
 use embassy_stm32::pac;
 use embassy_stm32::peripherals::ADC1;
-use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use embassy_sync::blocking_mutex::Mutex;
 use embassy_time::Instant;
-use gonio_firmware::step_queue::{reached, Pins, StepQueue};
+use gonio_firmware::step_queue::{reached, Edge, Pins, StepQueue};
 use gonio_firmware::timed::{tick, SharedQueue};
 use gonio_firmware::{Clock, Detector, Readout, Switches};
 use gonio_shared::Axis;
@@ -41,8 +38,21 @@ pub const ADC_OVERSAMPLE: u32 = 8;
 /// a low-impedance source such as a transimpedance amplifier's output.
 const ADC_SAMPLE_TIME: SampleTime = SampleTime::CYCLES144;
 
-/// The queue the controller loop fills and the TIM2 / EXTI interrupts play and stop.
-static STEP_QUEUE: Mutex<CriticalSectionRawMutex, RefCell<StepQueue>> = Mutex::new(RefCell::new(StepQueue::new()));
+/// The queue the controller loop fills and the TIM2 / EXTI interrupts play and stop. Touched only
+/// by priority-0 handlers (TIM2, EXTI), which nothing preempts, and by the loop inside a critical
+/// section ([`CsQueue`]), so every access is exclusive without a lock in the step interrupt
+/// (a lock and a `RefCell` there cost ~12 instructions per compare event).
+static mut STEP_QUEUE: StepQueue = StepQueue::new();
+
+/// The step queue, exclusively.
+///
+/// # Safety
+/// Only from a priority-0 handler, or with interrupts masked.
+#[inline(always)]
+unsafe fn step_queue() -> &'static mut StepQueue {
+    // SAFETY: exclusive by the caller's contract (see `STEP_QUEUE`).
+    unsafe { &mut *core::ptr::addr_of_mut!(STEP_QUEUE) }
+}
 
 /// Axis bits (`1 << Axis::index`) to STEP pin bits: light PB0, detector PB1, tilt PB6, azimuth PB7.
 fn step_pins(axes: u8) -> u32 {
@@ -70,23 +80,37 @@ fn apply(p: Pins) {
 /// TIM2's compare-interrupt enable and flag bits of the four channels (CC1..CC4 = bits 1..4).
 const CC_BITS: u32 = 0b1_1110;
 
-/// Point channel `i`'s compare at `tick`. A tick already due (or due before the write lands) is
-/// forced with a software compare event, so none is missed until the counter wraps.
+/// Channel `i`'s STEP and DIR pins as GPIOB BSRR set bits (their reset bits are 16 higher).
+const STEP_PIN: [u32; 4] = [1 << 0, 1 << 1, 1 << 6, 1 << 7];
+const DIR_PIN: [u32; 4] = [1 << 12, 1 << 13, 1 << 14, 1 << 15];
+
 #[inline(always)]
-fn compare_at(i: usize, tick: u32) {
-    let t = pac::TIM2;
-    t.ccr(i).write_value(tick);
-    if reached(tick, t.cnt().read()) {
-        t.egr().write(|e| e.set_ccg(i, true));
-    }
+fn write_bsrr(word: u32) {
+    pac::GPIOB.bsrr().write_value(pac::gpio::regs::Bsrr(word));
 }
 
-/// After the loop touched the queue: lower the STEP pins a stop left high, set the DIR pins of
-/// the channels it started and arm their compares, and enable exactly the running channels.
-fn sync_channels(q: &mut StepQueue) {
+/// Point channel `i`'s compare at `tick`. A tick already due (or due before the write lands) is
+/// forced with a software compare event, so none is missed until the counter wraps; returns
+/// whether it was.
+#[inline(always)]
+fn compare_at(i: usize, tick: u32) -> bool {
     let t = pac::TIM2;
-    let lowered = q.take_lowered();
-    let kicked = q.take_kicked();
+    t.ccr(i).write_value(tick);
+    let late = reached(tick, t.cnt().read());
+    if late {
+        t.egr().write(|e| e.set_ccg(i, true));
+    }
+    late
+}
+
+/// After the loop touched the queue: lower the STEP pins a stop left high, disarm the channels it
+/// stopped, set the DIR pins of the channels it started and arm their compares.
+fn sync_channels(q: &mut StepQueue) {
+    let (lowered, kicked, disarmed) = (q.take_lowered(), q.take_kicked(), q.take_disarmed());
+    if (lowered | kicked | disarmed) == 0 {
+        return;
+    }
+    let t = pac::TIM2;
     let dir = q.dir_levels();
     apply(Pins {
         step_low: lowered,
@@ -94,39 +118,30 @@ fn sync_channels(q: &mut StepQueue) {
         dir_decreasing: kicked & !dir,
         step_high: 0,
     });
+    t.dier().modify(|d| d.0 &= !(u32::from(disarmed) << 1));
     // rc_w0: clear stale compare flags of the started channels only.
     t.sr().write_value(pac::timer::regs::SrGp16(!(u32::from(kicked) << 1)));
     for i in 0..4 {
-        if kicked & (1 << i) != 0 {
-            compare_at(i, q.compare_tick(i));
+        if kicked & (1 << i) != 0 && compare_at(i, q.compare_tick(i)) {
+            q.note_late();
         }
     }
-    t.dier()
-        .modify(|d| d.0 = (d.0 & !CC_BITS) | (u32::from(q.running()) << 1));
+    t.dier().modify(|d| d.0 |= u32::from(kicked) << 1);
 }
 
-/// The queue behind the critical-section mutex; every access re-synchronises the channels, so a
-/// segment the loop queued for an idle axis starts it.
+/// The queue inside a critical section; every access re-synchronises the channels, so a segment
+/// the loop queued for an idle axis starts it.
 pub struct CsQueue;
 
 impl SharedQueue for CsQueue {
     fn with<R>(&self, f: impl FnOnce(&mut StepQueue) -> R) -> R {
-        STEP_QUEUE.lock(|cell| {
-            let mut q = queue(cell);
-            let r = f(&mut q);
-            sync_channels(&mut q);
+        cortex_m::interrupt::free(|_| {
+            // SAFETY: interrupts are masked.
+            let q = unsafe { step_queue() };
+            let r = f(q);
+            sync_channels(q);
             r
         })
-    }
-}
-
-/// The queue, inside the critical section. Never already borrowed: every borrow is one critical
-/// section that calls nothing re-entrant. `try_borrow_mut` rather than `borrow_mut` only so the
-/// impossible case is a defmt panic, without `core::fmt` (flash).
-fn queue(cell: &RefCell<StepQueue>) -> core::cell::RefMut<'_, StepQueue> {
-    match cell.try_borrow_mut() {
-        Ok(q) => q,
-        Err(_) => defmt::panic!("step queue re-entered"),
     }
 }
 
@@ -162,27 +177,48 @@ pub fn start_step_timer(tim2: embassy_stm32::Peri<'static, embassy_stm32::periph
 
 /// One compare channel per axis (CC1..CC4 = light, detector, tilt, azimuth): each event is a
 /// rise or a fall of that axis's STEP pin (`StepQueue::on_compare`), then the channel's next
-/// compare, or the channel is disarmed when its ring ran out.
+/// compare, or the channel is disarmed when its ring ran out. One BSRR write per event.
 #[interrupt]
 fn TIM2() {
     let t = pac::TIM2;
     let flags = t.sr().read().0 & t.dier().read().0 & CC_BITS;
     // rc_w0: writing 0 clears only the flags being served.
     t.sr().write_value(pac::timer::regs::SrGp16(!flags));
-    STEP_QUEUE.lock(|cell| {
-        let mut q = queue(cell);
-        let mut pending = flags >> 1;
-        while pending != 0 {
-            let i = pending.trailing_zeros() as usize;
-            pending &= pending - 1;
-            let (pins, next) = q.on_compare(i, t.cnt().read());
-            apply(pins);
-            match next {
-                Some(tick) => compare_at(i, tick),
-                None => t.dier().modify(|d| d.set_ccie(i, false)),
+    // SAFETY: a priority-0 handler.
+    let q = unsafe { step_queue() };
+    let mut pending = flags >> 1;
+    while pending != 0 {
+        let i = pending.trailing_zeros() as usize & 3;
+        pending &= pending - 1;
+        let step = STEP_PIN[i];
+        match q.on_compare(i) {
+            Edge::Rise(tick) => {
+                write_bsrr(step);
+                compare_at(i, tick);
+            }
+            Edge::Fall(tick) => {
+                write_bsrr(step << 16);
+                if compare_at(i, tick) {
+                    q.note_late();
+                }
+            }
+            Edge::FallDir(tick) => {
+                let dir = if q.dir_levels() & (1 << i) != 0 {
+                    DIR_PIN[i]
+                } else {
+                    DIR_PIN[i] << 16
+                };
+                write_bsrr(step << 16 | dir);
+                if compare_at(i, tick) {
+                    q.note_late();
+                }
+            }
+            Edge::Ended => {
+                write_bsrr(step << 16);
+                t.dier().modify(|d| d.set_ccie(i, false));
             }
         }
-    });
+    }
 }
 
 /// An EXTI line fired: stop playback if the switch is armed.
@@ -192,15 +228,14 @@ fn switch_closed_irq(lines: u32) {
     // EXTI line -> axis bit: lines 1, 2, 3 (PA1 light, PA2 detector, PA3 tilt) -> bits 0, 1, 2;
     // line 5 (PB5 azimuth) -> bit 3.
     let closed = ((pending >> 1) & 0b0111) as u8 | ((pending >> 2) & 0b1000) as u8;
-    STEP_QUEUE.lock(|cell| {
-        let mut q = queue(cell);
-        let pins = q.trip(closed);
-        if q.tripped() != 0 {
-            // Every channel stops at once; its STEP pin is forced low below.
-            pac::TIM2.dier().modify(|d| d.0 &= !CC_BITS);
-        }
-        apply(pins);
-    });
+    // SAFETY: a priority-0 handler.
+    let q = unsafe { step_queue() };
+    let pins = q.trip(closed);
+    if q.tripped() != 0 {
+        // Every channel stops at once; its STEP pin is forced low below.
+        pac::TIM2.dier().modify(|d| d.0 &= !CC_BITS);
+    }
+    apply(pins);
 }
 
 #[interrupt]
