@@ -109,6 +109,8 @@ pub struct StepQueue {
     armed: u8,
     /// Armed switches that closed since the controller last looked; nothing plays while non-zero.
     tripped: u8,
+    /// Steps loaded into the channels from the rings (for `QueueStats::steps`).
+    loaded: u32,
     stats: QueueStats,
 }
 
@@ -133,6 +135,7 @@ impl StepQueue {
             lowered: 0,
             armed: 0,
             tripped: 0,
+            loaded: 0,
             stats: QueueStats {
                 steps: 0,
                 flushed: 0,
@@ -154,8 +157,21 @@ impl StepQueue {
         self.rings.each_ref().map(|r| SEGMENT_RING.saturating_sub(r.len()))
     }
 
+    /// The counters; `steps` is worked out here rather than counted in the interrupt: the steps
+    /// loaded into the channels minus those not made yet.
     pub fn stats(&self) -> QueueStats {
-        self.stats
+        let unmade: u32 = (0..AXIS_COUNT).map(|i| self.unmade(i)).sum();
+        QueueStats {
+            steps: self.loaded.wrapping_sub(unmade),
+            ..self.stats
+        }
+    }
+
+    /// Steps channel `i` has loaded and not made: those left in its segment, and one scheduled
+    /// and not risen yet.
+    fn unmade(&self, i: usize) -> u32 {
+        let scheduled = (self.pending | (self.running & !self.high)) & (1 << i) != 0;
+        self.play.get(i).map_or(0, Playback::left) + u32::from(scheduled)
     }
 
     /// Is anything queued or playing?
@@ -210,6 +226,7 @@ impl StepQueue {
             };
             let Some(seg) = ring.pop_front() else { return };
             play.load(&seg);
+            self.loaded = self.loaded.wrapping_add(seg.count);
             self.dir = if seg.increasing { self.dir | b } else { self.dir & !b };
         }
         self.pending &= !b;
@@ -246,9 +263,14 @@ impl StepQueue {
         core::mem::take(&mut self.disarmed)
     }
 
-    /// Channel `i`'s armed compare tick.
+    /// Channel `i`'s armed compare tick: its fall while its STEP pin is high, its next rise otherwise.
     pub fn compare_tick(&self, i: usize) -> u32 {
-        self.compare.get(i).copied().unwrap_or(0)
+        let t = self.compare.get(i).copied().unwrap_or(0);
+        if self.high & (1 << i) != 0 {
+            t.wrapping_add(PULSE_TICKS)
+        } else {
+            t
+        }
     }
 
     /// Channel `i`'s compare event: a rise or a fall of its STEP pin, and its next compare tick.
@@ -260,9 +282,7 @@ impl StepQueue {
         };
         if self.high & b == 0 {
             self.high |= b;
-            self.stats.steps = self.stats.steps.wrapping_add(1);
-            *compare = compare.wrapping_add(PULSE_TICKS);
-            return Edge::Rise(*compare);
+            return Edge::Rise(compare.wrapping_add(PULSE_TICKS));
         }
         self.high &= !b;
         if !play.schedule() {
@@ -286,6 +306,7 @@ impl StepQueue {
             return Edge::Ended;
         };
         play.load(&seg);
+        self.loaded = self.loaded.wrapping_add(seg.count);
         *compare = play.tick();
         if (self.dir & b != 0) != seg.increasing {
             self.dir ^= b;
@@ -387,13 +408,13 @@ impl StepQueue {
     pub fn drop_all(&mut self) -> [u32; AXIS_COUNT] {
         let mut left = [0u32; AXIS_COUNT];
         for (i, l) in left.iter_mut().enumerate() {
-            let b = 1u8 << i;
+            let unmade = self.unmade(i);
+            self.loaded = self.loaded.wrapping_sub(unmade);
             let (Some(ring), Some(play)) = (self.rings.get_mut(i), self.play.get_mut(i)) else {
                 continue;
             };
             let queued: u32 = ring.iter().map(|s| s.count).sum();
-            let scheduled = (self.pending | (self.running & !self.high)) & b != 0;
-            *l = queued + play.left() + u32::from(scheduled);
+            *l = queued + unmade;
             ring.clear();
             *play = Playback::new();
         }

@@ -83,10 +83,17 @@ impl<B: Clock + Switches + Detector, Q: SharedQueue> QueuedHal<B, Q> {
                 });
             }
             self.now_us = self.now_us.max(t);
-            device.poll(self);
-            self.arm(device.stop_mask());
+            self.poll_device(device);
         }
         Some(self.board.now_us())
+    }
+
+    /// The controller's poll, out of line: most turns of the loop during a move only read the
+    /// switches and find nothing due, and should not pay for the poll's stack frame.
+    #[inline(never)]
+    fn poll_device(&mut self, device: &mut Device) {
+        device.poll(self);
+        self.arm(device.stop_mask());
     }
 
     /// An armed switch found closed stops the channels as its interrupt would have.

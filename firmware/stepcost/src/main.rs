@@ -16,7 +16,7 @@
 
 use core::fmt::Write;
 use cortex_m_rt::entry;
-use gonio_firmware::step_queue::{reached, Edge, Pins, StepQueue};
+use gonio_firmware::step_queue::{reached, Edge, Pins, StepQueue, PULSE_TICKS};
 use gonio_firmware::timed::{tick, QueuedHal, SharedQueue};
 use gonio_firmware::{Clock, Detector, Device, Readout, Switches};
 use gonio_shared::frame::{encode, MAX_WIRE_FRAME};
@@ -146,7 +146,8 @@ impl SharedQueue for CsQueue {
 /// timer raises none).
 #[inline(never)]
 fn tim2_isr(flags: u32) {
-    let flags = flags | (rd(TIM_SR) & rd(TIM_DIER) & CC_BITS);
+    // As many instructions as the board's `SR & DIER & CC_BITS` (QEMU raises no compare flag).
+    let flags = flags | (rd(TIM_SR) & rd(TIM_DIER));
     wr(TIM_SR, !flags);
     let q = step_queue();
     let mut pending = flags >> 1;
@@ -155,9 +156,9 @@ fn tim2_isr(flags: u32) {
         pending &= pending - 1;
         let step = STEP_PIN[i];
         match q.on_compare(i) {
-            Edge::Rise(t) => {
+            Edge::Rise(_) => {
                 wr(GPIOB_BSRR, step);
-                compare_at(i, t);
+                wr(TIM_CCR1 + 4 * i as u32, now_tick().wrapping_add(PULSE_TICKS));
             }
             Edge::Fall(t) => {
                 wr(GPIOB_BSRR, step << 16);
@@ -191,17 +192,19 @@ struct SimBoard {
     real: u64,
     pos: [i64; 4],
     dir: [bool; 4],
-    cfg: InstrumentConfig<f32>,
+    /// Home position and side per axis (`None`: a continuous axis's index at 0).
+    homes: [(i64, Option<gonio_shared::HomeSide>); 4],
 }
 
 impl SimBoard {
+    /// A switch level, as cheap as the board's pin read: the home positions are worked out once.
     fn closed(&self, axis: Axis) -> bool {
         let i = axis.index();
-        let home = i64::from(gonio_firmware::homing::home_position(&self.cfg, axis));
-        match (self.cfg.axis(axis).continuous, self.cfg.axis(axis).home) {
-            (true, _) => self.pos[i] == 0,
-            (false, gonio_shared::HomeSide::Max) => self.pos[i] >= home,
-            (false, gonio_shared::HomeSide::Min) => self.pos[i] <= home,
+        let (home, side) = self.homes[i];
+        match side {
+            None => self.pos[i] == 0,
+            Some(gonio_shared::HomeSide::Max) => self.pos[i] >= home,
+            Some(gonio_shared::HomeSide::Min) => self.pos[i] <= home,
         }
     }
 }
@@ -362,7 +365,11 @@ fn main() -> ! {
         real: 0,
         pos: [0; 4],
         dir: [true; 4],
-        cfg,
+        homes: AXES.map(|a| {
+            let c = cfg.axis(a);
+            let home = i64::from(gonio_firmware::homing::home_position(&cfg, a));
+            (home, (!c.continuous).then_some(c.home))
+        }),
     };
     let mut hal = QueuedHal::new(board, CsQueue);
     let mut seq = 0;

@@ -22,7 +22,7 @@ use embassy_stm32::mode::Blocking;
 use embassy_stm32::pac;
 use embassy_stm32::peripherals::ADC1;
 use embassy_time::Instant;
-use gonio_firmware::step_queue::{reached, Edge, Pins, StepQueue};
+use gonio_firmware::step_queue::{reached, Edge, Pins, StepQueue, PULSE_TICKS};
 use gonio_firmware::timed::{tick, SharedQueue};
 use gonio_firmware::{Clock, Detector, Readout, Switches};
 use gonio_shared::Axis;
@@ -192,9 +192,12 @@ fn TIM2() {
         pending &= pending - 1;
         let step = STEP_PIN[i];
         match q.on_compare(i) {
-            Edge::Rise(tick) => {
+            Edge::Rise(_) => {
                 write_bsrr(step);
-                compare_at(i, tick);
+                // The fall from the counter, not the scheduled tick: the pulse is PULSE_TICKS long
+                // even when the interrupt was held up, and the compare cannot be missed (nothing
+                // preempts this handler for 3 us between the read and the write).
+                t.ccr(i).write_value(t.cnt().read().wrapping_add(PULSE_TICKS));
             }
             Edge::Fall(tick) => {
                 write_bsrr(step << 16);
