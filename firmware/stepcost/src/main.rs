@@ -455,13 +455,15 @@ fn print(s: &str) {
 fn exit(ok: bool) -> ! {
     // SYS_EXIT with ADP_Stopped_ApplicationExit (QEMU exits 0) or RunTimeErrorUnknown (exits 1).
     semihost(0x18, if ok { 0x20026 } else { 0x20023 });
-    loop {}
+    loop {
+        cortex_m::asm::wfi();
+    }
 }
 
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
     let mut out: heapless::String<256> = heapless::String::new();
-    let _ = write!(out, "step-cost harness panicked: {info}\n");
+    let _ = writeln!(out, "step-cost harness panicked: {info}");
     print(&out);
     exit(false)
 }
