@@ -427,3 +427,69 @@ impl StepQueue {
         left
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn seg(t0: u32, count: u32, increasing: bool) -> Segment {
+        Segment {
+            t0: u64::from(t0) << 32,
+            interval: 10 << 32,
+            add: 0,
+            count,
+            increasing,
+        }
+    }
+
+    /// Service every compare until `until`; returns the rise ticks of `axis`.
+    fn play(q: &mut StepQueue, mut now: u32, until: u32, axis: usize) -> Vec<u32, 64> {
+        let mut rises = Vec::new();
+        while let Some(w) = q.next_wake(now) {
+            if w > until {
+                break;
+            }
+            now = w.max(now);
+            let (pins, _) = q.service(now);
+            if pins.step_high & (1 << axis) != 0 {
+                rises.push(now).unwrap();
+            }
+        }
+        rises
+    }
+
+    use heapless::Vec;
+
+    #[test]
+    fn segments_play_back_to_back_with_pulses_and_dir() {
+        let mut q = StepQueue::new();
+        q.push(Axis::Tilt, seg(100, 3, true)).unwrap();
+        q.push(Axis::Tilt, seg(130, 2, false)).unwrap();
+        assert_eq!(q.dir_levels(), 1 << Axis::Tilt.index());
+        let rises = play(&mut q, 0, 1_000, Axis::Tilt.index());
+        assert_eq!(&rises[..], &[110, 120, 130, 140, 150]);
+        assert_eq!(q.dir_levels(), 0, "the second segment turned the axis round");
+        assert_eq!(q.stats().steps, 5);
+        assert!(q.is_idle());
+    }
+
+    #[test]
+    fn a_trip_stops_at_once_and_every_queued_step_is_made_or_counted_dropped() {
+        let mut q = StepQueue::new();
+        q.set_armed(1 << Axis::Light.index());
+        q.push(Axis::Light, seg(0, 10, true)).unwrap();
+        q.push(Axis::Light, seg(100, 5, true)).unwrap();
+        let rises = play(&mut q, 0, 41, Axis::Light.index());
+        assert_eq!(rises.len(), 4);
+        // Mid-pulse of the 4th step: STEP forced low, nothing more plays.
+        let pins = q.trip(1 << Axis::Light.index());
+        assert_eq!(pins.step_low, 1 << Axis::Light.index());
+        assert_eq!(q.next_wake(42), None);
+        let left = q.drop_all();
+        assert_eq!(left[Axis::Light.index()], 11);
+        assert_eq!(q.stats().steps, 4);
+        assert_eq!(q.stats().flushed, 11);
+        assert_eq!(q.take_trip(), 1 << Axis::Light.index());
+        assert!(q.is_idle());
+    }
+}
