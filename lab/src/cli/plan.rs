@@ -183,6 +183,10 @@ pub struct ClosedLoopArgs {
     /// Finest grid (power of two).
     #[arg(long, default_value_t = 16)]
     pub max_grid: usize,
+    /// Summarise the rows of an earlier run's closed-loop.csv (with the product's current
+    /// constants) instead of running the loop again.
+    #[arg(long, value_name = "CSV")]
+    pub rows: Option<PathBuf>,
     #[arg(short, long)]
     pub output: PathBuf,
 }
@@ -197,6 +201,14 @@ pub fn run_closed_loop(args: ClosedLoopArgs) -> Result<()> {
     };
     let bar = indicatif::ProgressBar::new(materials.len() as u64);
     with_progress(bar, |progress| {
-        tradeoff::closed_loop::run(args.preset, &materials, &instrument, max_level, &args.output, progress)
+        tradeoff::closed_loop::run(
+            args.preset,
+            &materials,
+            &instrument,
+            max_level,
+            args.rows.as_deref(),
+            &args.output,
+            progress,
+        )
     })
 }

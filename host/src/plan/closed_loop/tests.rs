@@ -71,8 +71,9 @@ fn a_target_not_met_stops_at_the_deepest_level_and_says_so() {
 #[test]
 fn the_loop_stops_early_on_a_rough_material_and_goes_deeper_on_a_sharp_one() {
     let rule = StopRule::TargetFlip(DEFAULT_TARGET_FLIP);
-    let rough = "nbrdf:white-paint";
-    let sharp = "nbrdf:specular-blue-phenolic";
+    // Training materials (the estimator's constants were chosen on them).
+    let rough = "nbrdf:dark-red-paint";
+    let sharp = "nbrdf:two-layer-silver";
     let stops: Vec<(usize, Vec<Option<f64>>)> = [rough, sharp]
         .iter()
         .map(|m| {
@@ -94,7 +95,7 @@ fn the_loop_stops_early_on_a_rough_material_and_goes_deeper_on_a_sharp_one() {
 fn a_wrong_seed_still_converges() {
     // The photo said rough; the sample is sharp: the loop must not stop on the seed's word, and
     // its reconstruction must improve level after level.
-    let truth = "nbrdf:specular-blue-phenolic";
+    let truth = "nbrdf:two-layer-silver";
     let plan = plan_for(&ggx_estimate(0.3, 0.2), 4);
     let closed = simulate(&plan, truth, StopRule::TargetFlip(DEFAULT_TARGET_FLIP));
     let flips: Vec<f64> = closed.levels.iter().filter_map(|a| a.true_flip).collect();

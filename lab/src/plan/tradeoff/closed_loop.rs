@@ -48,7 +48,7 @@ impl LoopPreset {
 }
 
 /// One level of one material and strategy.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct LoopRow {
     pub material: String,
     /// `adaptive` (the closed loop) or `uniform`.
@@ -167,8 +167,29 @@ pub fn replay(levels: &[&LoopRow], target: f64) -> Option<(f64, f64, Option<f64>
     Some((stop.true_flip?, stop.minutes, oracle.map(|r| r.minutes)))
 }
 
+/// Rows with their estimates re-derived from the recorded change FLIP with the product's current
+/// constants (so a csv made before a constant changed is summarised as the product now estimates).
+pub fn with_current_constants(mut rows: Vec<LoopRow>) -> Vec<LoopRow> {
+    for r in &mut rows {
+        if let Some(d) = r.change_flip {
+            r.est_flip = Some(d * closed_loop::FLIP_RATIO);
+            r.est_lo = Some(d * closed_loop::FLIP_RATIO_LO);
+            r.est_hi = Some(d * closed_loop::FLIP_RATIO_HI);
+        }
+    }
+    rows
+}
+
+/// Read the rows of a `closed-loop.csv`.
+pub fn read_rows(path: &Path) -> Result<Vec<LoopRow>, PlanError> {
+    let err = |e: &dyn std::fmt::Display| PlanError::Invalid(format!("{}: {e}", path.display()));
+    let mut reader = ::csv::Reader::from_path(path).map_err(|e| err(&e))?;
+    reader.deserialize().map(|r| r.map_err(|e| err(&e))).collect()
+}
+
 /// The report's markdown from its rows.
 pub fn summary(rows: &[LoopRow], title: &str, regenerate: &str) -> String {
+    let rows = &with_current_constants(rows.to_vec());
     let mut md = String::new();
     let _ = writeln!(md, "# Closed loop: {title}\n\nRegenerate: `{regenerate}`\n");
     let adaptive: Vec<&LoopRow> = rows.iter().filter(|r| r.strategy == "adaptive").collect();
@@ -292,10 +313,14 @@ pub fn run(
     materials: &[String],
     instrument: &InstrumentConfig<f64>,
     max_level: usize,
+    from_csv: Option<&Path>,
     dir: &Path,
     progress: &dyn Fn(&str),
 ) -> Result<String, PlanError> {
-    let rows = run_rows(materials, instrument, max_level, progress)?;
+    let rows = match from_csv {
+        Some(path) => read_rows(path)?,
+        None => run_rows(materials, instrument, max_level, progress)?,
+    };
     std::fs::create_dir_all(dir).map_err(|e| PlanError::Invalid(format!("{}: {e}", dir.display())))?;
     write(dir, "closed-loop.csv", &csv(&rows)?)?;
     let name = format!("{preset:?}").to_lowercase();
