@@ -13,16 +13,21 @@ use std::path::PathBuf;
 #[derive(clap::Args, Clone, Debug)]
 #[group(id = "size", multiple = false)]
 pub struct LevelArgs {
-    /// Outgoing grid N (N x N per incoming elevation; a power of two, 2..=64). Default 16.
+    /// Outgoing grid N (N x N per incoming elevation; a power of two, 2..=64). Default 16. `gonio
+    /// scan`: the deepest level; alone, every level up to it is measured.
     #[arg(long)]
     pub grid: Option<usize>,
-    /// Smallest level whose render PSNR (dB), simulated on the estimate, reaches this (predictive rule).
+    /// Smallest level whose point-light PSNR (dB) reaches this: `gonio plan` simulates it on the
+    /// estimate; `gonio scan` stops at the first level whose estimated PSNR does (closed loop).
     #[arg(long)]
     pub target_psnr: Option<f64>,
-    /// Smallest level whose mean FLIP, simulated on the estimate, is at most this (predictive rule).
+    /// Smallest level whose mean point-light FLIP is at most this: `gonio plan` simulates it on the
+    /// estimate; `gonio scan` stops at the first level whose estimated FLIP is (closed loop;
+    /// its default without a rule: 0.01).
     #[arg(long)]
     pub target_flip: Option<f64>,
-    /// Deepest level whose whole plan fits this time: 90, 90s, 15m, 2h, 1h30m.
+    /// Deepest level whose whole plan fits this time: 90, 90s, 15m, 2h, 1h30m (`gonio scan`:
+    /// the levels are measured one by one up to it).
     #[arg(long, value_parser = parse_duration)]
     pub time_budget: Option<f64>,
 }

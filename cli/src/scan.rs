@@ -6,8 +6,9 @@ use crate::progress::{print_run, TerminalProgress};
 use anyhow::{bail, Context, Result};
 use gonio::encoder::ModelKind;
 use gonio::link::{self, run_options};
+use gonio::plan::closed_loop::{self, StopRule};
 use gonio::scan::calibration::{self, Calibration};
-use gonio::scan::{FreshScan, LevelRule, ScanRequest, Start};
+use gonio::scan::{FreshScan, ScanRequest, Start};
 use std::io::BufRead;
 use std::path::PathBuf;
 
@@ -24,7 +25,7 @@ pub struct ScanArgs {
     pub sim: Option<PathBuf>,
     #[command(flatten)]
     pub level: crate::plan::LevelArgs,
-    /// Deepest grid the target and budget rules consider.
+    /// Deepest grid the closed loop may reach when --grid is not given.
     #[arg(long, default_value_t = 16)]
     pub max_grid: usize,
     /// Instrument file (default: the shipped examples/gonio.toml).
@@ -86,30 +87,24 @@ pub fn run_scan(a: ScanArgs) -> Result<()> {
                 if !db.is_finite() {
                     bail!("--target-psnr must be finite");
                 }
-                LevelRule::TargetPsnr {
-                    db,
-                    max_grid: a.max_grid,
-                }
+                StopRule::TargetPsnr(db)
             } else if let Some(flip) = a.level.target_flip {
                 if !(flip > 0.0 && flip < 1.0) {
                     bail!("--target-flip {flip} must be in (0, 1)");
                 }
-                LevelRule::TargetFlip {
-                    flip,
-                    max_grid: a.max_grid,
-                }
+                StopRule::TargetFlip(flip)
             } else if let Some(seconds) = a.level.time_budget {
-                LevelRule::TimeBudget {
-                    seconds,
-                    max_grid: a.max_grid,
-                }
+                StopRule::TimeBudget(seconds)
+            } else if a.level.grid.is_some() {
+                StopRule::Depth
             } else {
-                LevelRule::Grid(a.level.grid.unwrap_or(16))
+                StopRule::TargetFlip(closed_loop::DEFAULT_TARGET_FLIP)
             };
             let fresh = FreshScan {
                 image: image.clone(),
                 model: a.model,
                 rule,
+                max_grid: a.level.grid.unwrap_or(a.max_grid),
                 instrument: a.instrument.clone(),
                 calibration: a.calibration.clone(),
                 port: a.port.clone(),
@@ -138,7 +133,7 @@ pub fn run_scan(a: ScanArgs) -> Result<()> {
     print_run(&outcome.measured);
     println!(
         "scan: {} directions (level {}, {}x{} x {} incoming; {}), estimate {}",
-        r.directions,
+        outcome.levels.last().map_or(0, |l| l.directions),
         r.level,
         1 << r.level,
         1 << r.level,
@@ -147,7 +142,7 @@ pub fn run_scan(a: ScanArgs) -> Result<()> {
         r.estimate
     );
     println!(
-        "host time {:.2} s: estimate {:.2}, plan {:.2}, calibrate {:.2}, stream/measure {:.2}, reconstruct {:.2}, outputs {:.2}",
+        "host time {:.2} s: estimate {:.2}, plan {:.2}, calibrate {:.2}, stream/measure {:.2}, reconstruct and estimate between levels {:.2}, outputs {:.2}",
         t.total(),
         t.estimate,
         t.plan,

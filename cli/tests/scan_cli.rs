@@ -32,8 +32,9 @@ fn fixture(scene_extra: &str) -> Fixture {
 }
 
 /// Outputs that depend only on the readings, the plan and the calibration (not on timing).
-const DETERMINISTIC: [&str; 10] = [
+const DETERMINISTIC: [&str; 11] = [
     "grid.json",
+    "levels.png",
     "measured.binary",
     "measured.bsdf",
     "render-point.png",
@@ -85,6 +86,16 @@ fn scan_against_the_sim_writes_every_output_and_the_bsdf_reads_back() {
     let out = fx.path("out");
     let stdout = scan_ok(&fx, &out, &["--speedup", "10000"]);
     assert!(stdout.contains("accuracy against the ground truth"), "{stdout}");
+    // --grid alone measures every level up to it, one line per level, and says why it stopped.
+    for needle in [
+        "level 1 (2x2)",
+        "level 2 (4x4)",
+        "estimated FLIP",
+        "true FLIP",
+        "deepest level asked for",
+    ] {
+        assert!(stdout.contains(needle), "{needle} not in {stdout}");
+    }
     for f in DETERMINISTIC
         .iter()
         .chain(&["report.md", "scan.toml", "calibration.toml", "journal"])
@@ -115,7 +126,13 @@ fn scan_against_the_sim_writes_every_output_and_the_bsdf_reads_back() {
         }
     }
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
-    for needle in ["## Counts", "## Host time", "PSNR", "measured.bsdf read back"] {
+    for needle in [
+        "## Counts",
+        "## Host time",
+        "PSNR",
+        "measured.bsdf read back",
+        "## Levels (closed loop)",
+    ] {
         assert!(report.contains(needle), "{needle} not in report.md");
     }
     // The grid file names its nodes and every measured direction.
@@ -195,6 +212,56 @@ fn a_killed_scan_resumes_to_identical_outputs_and_a_corrupt_plan_is_refused() {
     assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
     assert!(stderr.contains("plan.bin"), "{stderr}");
     assert_eq!(listing(&killed), files);
+}
+
+#[test]
+fn a_scan_cut_between_levels_resumes_to_identical_outputs() {
+    let fx = fixture("");
+    let reference = fx.path("reference");
+    scan_ok(&fx, &reference, &["--speedup", "10000"]);
+    let grid: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(reference.join("grid.json")).unwrap()).unwrap();
+    let level1 = grid["measurements"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|m| m["level"] == 1)
+        .count();
+    assert!(level1 > 0 && level1 < journal_records(&reference).len());
+    // The state of a scan stopped right after level 1: its inputs and only level 1's readings.
+    let cut = fx.path("cut");
+    std::fs::create_dir_all(&cut).unwrap();
+    for f in ["scan.toml", "plan.bin", "calibration.toml"] {
+        std::fs::copy(reference.join(f), cut.join(f)).unwrap();
+    }
+    let journal: String = std::fs::read_to_string(reference.join("journal"))
+        .unwrap()
+        .lines()
+        .filter(|l| match l.strip_prefix("m ") {
+            Some(rest) => rest.split(' ').next().unwrap().parse::<usize>().unwrap() < level1,
+            None => true,
+        })
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(cut.join("journal"), journal).unwrap();
+    assert_eq!(journal_records(&cut).len(), level1);
+    let o = run(&["scan", "--resume", s(&cut), "--speedup", "10000"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        stdout.contains(&format!("({level1} resumed from the journal)")),
+        "{stdout}"
+    );
+    for f in DETERMINISTIC {
+        let (a, b) = (
+            std::fs::read(reference.join(f)).unwrap(),
+            std::fs::read(cut.join(f)).unwrap(),
+        );
+        assert!(
+            a == b,
+            "{f} differs between the uninterrupted scan and the one resumed between levels"
+        );
+    }
 }
 
 /// Every file of `dir` with its bytes, sorted by name.

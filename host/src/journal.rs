@@ -167,7 +167,15 @@ impl Journal {
 
     /// Plan indices not yet measured, in plan order.
     pub fn remaining(&self) -> Vec<u32> {
-        (0..self.total).filter(|i| !self.records.contains_key(i)).collect()
+        self.remaining_below(self.total)
+    }
+
+    /// Plan indices below `limit` not yet measured, in plan order (a progressive scan measures
+    /// its plan one level, a prefix, at a time).
+    pub fn remaining_below(&self, limit: u32) -> Vec<u32> {
+        (0..self.total.min(limit))
+            .filter(|i| !self.records.contains_key(i))
+            .collect()
     }
 
     /// Append one reading taken at plan direction `index` (not yet synced).

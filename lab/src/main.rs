@@ -40,6 +40,9 @@ enum Command {
     PlanReport(cli::plan::PlanReportArgs),
     /// Accuracy vs measurement time per strategy and level (adaptive, adaptive-true, specular, uniform); --preset table1.
     Tradeoff(cli::plan::TradeoffArgs),
+    /// The closed loop in simulation: its error estimate, calibration, stop rules against the
+    /// oracle, and closed loop / uniform at equal directions (--preset training|heldout|real).
+    ClosedLoop(cli::plan::ClosedLoopArgs),
     /// Render an encoder dataset (examples/capture.toml with random or MERL materials).
     Dataset(cli::encoder::DatasetArgs),
     /// Train an encoder on a dataset and write ONNX (needs `--features train`).
@@ -62,6 +65,7 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::PlanReport(args) => cli::plan::run_plan_report(args),
         Command::Tradeoff(args) => cli::plan::run_tradeoff(args),
+        Command::ClosedLoop(args) => cli::plan::run_closed_loop(args),
         Command::Dataset(args) => cli::encoder::run_dataset(args),
         Command::Train(args) => cli::encoder::run_train(args),
         Command::EncoderReport(args) => cli::encoder::run_report(args),

@@ -3,7 +3,7 @@
 //!
 //! One small description ([`Chart`]) in, one PNG out, through plotters' bitmap backend drawing into a
 //! memory buffer that the project's own PNG writer saves atomically. The font (DejaVu Sans,
-//! `lab/assets/fonts`, Bitstream Vera licence) is compiled in, so charts look the same on every
+//! `host/assets/fonts`, Bitstream Vera licence) is compiled in, so charts look the same on every
 //! machine and the build needs no system font packages.
 
 use plotters::prelude::*;
@@ -89,7 +89,7 @@ pub enum PlotError {
 }
 
 const FONT_FAMILY: &str = "sans-serif";
-static FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");
+static FONT: &[u8] = include_bytes!("../../host/assets/fonts/DejaVuSans.ttf");
 
 fn register_font() {
     static REGISTER: Once = Once::new();

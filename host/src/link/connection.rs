@@ -7,7 +7,7 @@
 //! not a gonio leaves nothing behind).
 
 use super::{
-    run_plan, FaultConfig, FaultCounts, FaultyTransport, Link, LinkError, Progress, Reconnect, ReopenFaulty,
+    run_plan_below, FaultConfig, FaultCounts, FaultyTransport, Link, LinkError, Progress, Reconnect, ReopenFaulty,
     ReopenPath, RunError, RunOptions, RunSummary, SerialTransport, SharedFaultCounts, Transport,
 };
 use crate::journal::{Journal, JournalError};
@@ -115,6 +115,22 @@ impl Connection {
         opts: &RunOptions,
         progress: &mut dyn Progress,
     ) -> Result<Measured, MeasureError> {
+        self.measure_below(cfg, plan, plan.len(), out, resume, opts, progress)
+    }
+
+    /// `measure` of the plan's first `limit` directions (a progressive scan's level); the journal
+    /// is the whole plan's.
+    #[allow(clippy::too_many_arguments)]
+    pub fn measure_below(
+        self,
+        cfg: &InstrumentConfig<f64>,
+        plan: &[Direction],
+        limit: usize,
+        out: &Path,
+        resume: bool,
+        opts: &RunOptions,
+        progress: &mut dyn Progress,
+    ) -> Result<Measured, MeasureError> {
         let total = u32::try_from(plan.len()).unwrap_or(u32::MAX);
         let hash = super::plan_hash(plan)?;
         std::fs::create_dir_all(out).map_err(|error| MeasureError::CreateDir {
@@ -139,7 +155,7 @@ impl Connection {
             Some(r) => r,
             None => &mut reopen_plain,
         };
-        let result = run_plan(self.transport, reopen, cfg, plan, &mut journal, progress, opts);
+        let result = run_plan_below(self.transport, reopen, cfg, plan, limit, &mut journal, progress, opts);
         let summary = result.map_err(|error| MeasureError::Run {
             port: self.port.clone(),
             error,

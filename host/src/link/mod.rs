@@ -24,7 +24,9 @@ pub use connection::{check_journal_state, run_options, Connection, MeasureError,
 pub use error::LinkError;
 pub use measurements_csv::write_csv;
 pub use reliable::{LinkStats, LinkTiming};
-pub use run::{run_plan, Progress, Quiet, Reconnect, ReopenFaulty, ReopenPath, RunError, RunOptions, RunSummary};
+pub use run::{
+    run_plan, run_plan_below, Progress, Quiet, Reconnect, ReopenFaulty, ReopenPath, RunError, RunOptions, RunSummary,
+};
 pub use transport::{FaultConfig, FaultCounts, FaultyTransport, SerialTransport, SharedFaultCounts, Transport};
 
 /// The journal's key for a plan: FNV-1a 64 of its canonical plan-file encoding, so `gonio measure`

@@ -173,11 +173,28 @@ pub fn run_plan(
     progress: &mut dyn Progress,
     opts: &RunOptions,
 ) -> Result<RunSummary, RunError> {
+    run_plan_below(first, reconnect, cfg, plan, plan.len(), journal, progress, opts)
+}
+
+/// `run_plan` of the plan's first `limit` directions only (one level of a progressive scan; the
+/// journal keeps the whole plan's numbering).
+#[allow(clippy::too_many_arguments)]
+pub fn run_plan_below(
+    first: Box<dyn Transport>,
+    reconnect: &mut dyn Reconnect,
+    cfg: &InstrumentConfig<f64>,
+    plan: &[Direction],
+    limit: usize,
+    journal: &mut Journal,
+    progress: &mut dyn Progress,
+    opts: &RunOptions,
+) -> Result<RunSummary, RunError> {
+    let limit = u32::try_from(limit).unwrap_or(u32::MAX);
     let cfg32 = cfg.cast::<f32>();
     let mut summary = RunSummary::default();
     let mut transport = Some(first);
     loop {
-        let remaining = journal.remaining();
+        let remaining = journal.remaining_below(limit);
         if remaining.is_empty() {
             return Ok(summary);
         }

@@ -7,6 +7,7 @@
 //! * Unreachable nodes are nudged toward a reachable direction or dropped (`Dropped`).
 //! * Order and time: `order` within each level, timed by replaying the firmware's IK.
 
+pub mod closed_loop;
 pub mod file;
 pub mod order;
 mod planner;

@@ -3,17 +3,18 @@
 //!
 //! Phases (each timed on the host clock and reported in `report.md`):
 //! 1. **estimate**: `encoder::photo::estimate_from_photo` (encoder + diffuse/specular split);
-//! 2. **plan**: `plan::Planner` with nested levels; the level comes from the user's rule (`--grid`,
-//!    the predictive `--target-psnr` / `--target-flip`, or `--time-budget`, see [`LevelRule`]);
-//!    the encoded plan is re-simulated before it is sent (`Plan::check_encoded`);
+//! 2. **plan**: `plan::Planner` with nested levels up to the cap (`--grid`, default 16); the encoded
+//!    plan is re-simulated before it is sent (`Plan::check_encoded`);
 //! 3. **calibrate**: with `--calibration CAL.toml` that file; against `--sim` without one, the scan
 //!    calibrates itself first on the same simulated instrument (a light trap and the white standard
 //!    in the sample holder, see [`calibration`]); against a port without one it refuses;
-//! 4. **measure**: handshake (a firmware of another protocol is refused), home, stream, collect,
-//!    acknowledge, through `link::Connection` (the code `gonio measure` runs), with the journal in
-//!    OUTDIR and a progress bar;
-//! 5. **reconstruct**: counts -> BRDF with the calibration at the pose each reading was taken,
-//!    then `reconstruct::reconstruct` of the chosen level;
+//! 4. **measure and reconstruct, level by level** (the closed loop, `plan::closed_loop`, driven by
+//!    [`progressive`]): each level is measured through `link::Connection` (the code `gonio measure`
+//!    runs) into the one journal in OUTDIR with a progress bar; counts -> BRDF with the calibration
+//!    at the pose each reading was taken; the level is reconstructed from every direction so far,
+//!    its error estimated without ground truth (one console line per level), and the stop rule
+//!    (`--target-flip`, default 0.01; `--target-psnr`; `--time-budget`; `--grid` alone: every
+//!    level) decides whether the next level is measured;
 //! 6. **outputs** ([`outputs`]): `grid.json`, `measured.binary`, `measured.bsdf`, renders, and in
 //!    simulation the scores against the ground truth; `report.md`.
 //!
@@ -25,15 +26,20 @@
 //! `plan.bin` (the plan file `gonio measure` reads) and `calibration.toml`. `gonio scan --resume
 //! OUTDIR` refuses a scan made by another build or with other reconstruction settings, re-reads
 //! the rest, plans again from the stored estimate (the planner is deterministic) and refuses to go
-//! on unless that plan encodes to the stored `plan.bin` byte for byte; then it continues the
-//! journal. The outputs depend only on the journal's readings, the plan, the calibration and the
-//! reconstruction, so they equal an uninterrupted scan's.
+//! on unless that plan encodes to the stored `plan.bin` byte for byte; then it runs the loop again:
+//! levels complete in the journal are read, the level cut short is continued. The decisions and
+//! outputs depend only on the journal's readings, the plan, the calibration and the
+//! reconstruction, so they equal an uninterrupted scan's, whether it stopped mid-level or between
+//! levels.
 
 pub mod calibration;
 pub mod outputs;
+pub mod plot;
+pub mod progressive;
 
 use crate::encoder::ModelKind;
 use crate::link::{self, Connection, FaultConfig, Progress, RunOptions};
+use crate::plan::closed_loop::{self, StopRule};
 use crate::plan::{Estimate, Plan, PlanConfig, Planner, Spacing, Strategy};
 use crate::sim::{model::SimModel, SimHandle};
 use calibration::Calibration;
@@ -48,8 +54,11 @@ use std::time::Instant;
 pub const SCAN_FILE: &str = "scan.toml";
 pub const PLAN_FILE: &str = "plan.bin";
 pub const CALIBRATION_FILE: &str = "calibration.toml";
-/// Version of `scan.toml` (2: the gonio version and the reconstruction settings).
-pub const SCAN_FORMAT: u32 = 2;
+/// Version of `scan.toml` (2: the gonio version and the reconstruction settings; 3: the closed
+/// loop's stop rule, the level being measured and the journal).
+pub const SCAN_FORMAT: u32 = 3;
+/// The journal's file name in OUTDIR (one journal for every level).
+pub const JOURNAL_FILE: &str = crate::journal::FILE_NAME;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ScanError {
@@ -85,19 +94,6 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> ScanError + '_ {
         path: path.display().to_string(),
         error,
     }
-}
-
-/// How the plan's level is chosen.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum LevelRule {
-    /// N x N outgoing nodes (a power of two).
-    Grid(usize),
-    /// Smallest level whose capture render, simulated on the estimate, reaches this PSNR (dB).
-    TargetPsnr { db: f64, max_grid: usize },
-    /// Smallest level whose simulated mean FLIP is at most this.
-    TargetFlip { flip: f64, max_grid: usize },
-    /// Deepest level whose whole plan fits this many instrument seconds.
-    TimeBudget { seconds: f64, max_grid: usize },
 }
 
 /// Planner level of an N x N grid.
@@ -143,14 +139,21 @@ pub struct ScanRecord {
     pub encoder_outputs: Vec<f64>,
     /// The estimate the plan was built from (a spec that parses back to the same f64 values).
     pub estimate: String,
-    /// How the level was chosen, in words.
+    /// The stop rule, in words.
     pub rule: String,
+    /// The stop rule (`StopRule::to_record`).
+    pub stop_rule: String,
     pub strategy: String,
     pub spacing: String,
     pub incoming: usize,
+    /// The plan's levels (the cap); `plan.bin` holds all of them.
     pub max_level: usize,
+    /// The level being measured (a finished scan: the level it stopped at).
     pub level: usize,
+    /// Directions of the whole plan (the journal's numbering).
     pub directions: usize,
+    /// The journal's file name in OUTDIR.
+    pub journal: String,
     /// FNV-1a 64 of `plan.bin`, hex.
     pub plan_hash: String,
     /// The instrument file's text (the shipped one when none was given).
@@ -223,6 +226,11 @@ impl ScanRecord {
         })
     }
 
+    pub fn stop_rule(&self) -> Result<StopRule, ScanError> {
+        StopRule::parse(&self.stop_rule)
+            .ok_or_else(|| ScanError::Input(format!("{SCAN_FILE}: unknown stop rule {:?}", self.stop_rule)))
+    }
+
     pub fn estimate(&self) -> Result<Estimate, ScanError> {
         let model = crate::brdf::spec::parse_analytic(&self.estimate)
             .map_err(|e| ScanError::Input(format!("{SCAN_FILE}: estimate: {e}")))?;
@@ -265,7 +273,10 @@ impl PhaseTimes {
 pub struct FreshScan {
     pub image: PathBuf,
     pub model: ModelKind,
-    pub rule: LevelRule,
+    /// When the closed loop stops.
+    pub rule: StopRule,
+    /// The deepest grid (N x N) the loop may reach (a power of two).
+    pub max_grid: usize,
     pub instrument: Option<PathBuf>,
     pub calibration: Option<PathBuf>,
     /// `Some(port)` or `None` with `sim`.
@@ -299,6 +310,9 @@ pub struct ScanRequest {
 /// What a finished scan did.
 pub struct ScanOutcome {
     pub record: ScanRecord,
+    /// The closed loop's levels and why it stopped.
+    pub levels: Vec<closed_loop::LevelAssessment>,
+    pub stop_reason: String,
     pub measured: link::Measured,
     pub report: outputs::Report,
     pub times: PhaseTimes,
@@ -316,58 +330,6 @@ fn encode_checked(plan: Plan, instrument: &InstrumentConfig<f64>) -> Result<Plan
     let bytes = crate::plan::file::encode_plan(&wire)?;
     plan.check_encoded(instrument, &bytes)?;
     Ok(Planned { plan, wire, bytes })
-}
-
-/// Plan with `rule` (the same rules as `gonio plan`; the predictive one renders the capture
-/// scene of each level's reconstruction of the estimate against the estimate itself).
-fn plan_with_rule(
-    instrument: &InstrumentConfig<f64>,
-    estimate: &Estimate,
-    rule: LevelRule,
-) -> Result<(Plan, usize, String), ScanError> {
-    let max_level = match rule {
-        LevelRule::Grid(n) => level_of(n)?,
-        LevelRule::TargetPsnr { max_grid, .. }
-        | LevelRule::TargetFlip { max_grid, .. }
-        | LevelRule::TimeBudget { max_grid, .. } => level_of(max_grid)?,
-    };
-    let config = PlanConfig {
-        grids: crate::plan::square_grids(max_level),
-        ..PlanConfig::default()
-    };
-    let plan = Planner::new(*instrument, estimate.clone())?.plan(&config)?;
-    let (level, text) = match rule {
-        LevelRule::Grid(n) => (max_level, format!("grid {n}")),
-        LevelRule::TimeBudget { seconds, .. } => {
-            let level = plan.level_within_budget(seconds).ok_or_else(|| {
-                ScanError::Input(format!(
-                    "--time-budget {seconds:.0} s: even the first level needs {:.0} s",
-                    plan.levels.first().map_or(0.0, |l| l.cumulative_seconds)
-                ))
-            })?;
-            (level, format!("time budget {seconds:.0} s"))
-        }
-        LevelRule::TargetPsnr { db, .. } => predictive(&plan, estimate, |c| c.psnr >= db, &format!("PSNR >= {db} dB"))?,
-        LevelRule::TargetFlip { flip, .. } => {
-            predictive(&plan, estimate, |c| c.flip <= flip, &format!("FLIP <= {flip}"))?
-        }
-    };
-    Ok((plan, level, text))
-}
-
-fn predictive(
-    plan: &Plan,
-    estimate: &Estimate,
-    meets: impl Fn(&crate::render::metrics::Comparison) -> bool,
-    target: &str,
-) -> Result<(usize, String), ScanError> {
-    Ok(match crate::plan::predict::predictive_level(plan, estimate, meets)? {
-        Some(level) => (level, format!("predictive {target} (simulated on the estimate)")),
-        None => (
-            plan.levels.last().map_or(1, |l| l.level),
-            format!("predictive {target}: not met by any level, deepest level used"),
-        ),
-    })
 }
 
 /// Convert every journaled reading to a BRDF value, indexed like the plan's directions.
@@ -467,49 +429,102 @@ pub fn run(
         std::fs::create_dir_all(out).map_err(io_err(out))?;
         write_file(&out.join(PLAN_FILE), &planned.bytes)?;
         write_file(&out.join(CALIBRATION_FILE), cal.to_toml().as_bytes())?;
-        let text = toml::to_string(&record).map_err(|e| ScanError::Input(format!("{SCAN_FILE}: {e}")))?;
-        write_file(&out.join(SCAN_FILE), text.as_bytes())?;
     }
+    times.measure = t.elapsed().as_secs_f64();
     note(&format!(
-        "measuring {} directions on {}",
-        planned.wire.len(),
+        "measuring level by level on {} (up to {} directions; stop rule: {})",
         if sim.is_some() {
             "the virtual gonio"
         } else {
             port.as_str()
-        }
+        },
+        planned.wire.len(),
+        record.rule
     ));
-    let measured = connection.measure(&instrument, &planned.wire, out, resume, &req.options, progress)?;
-    times.measure = t.elapsed().as_secs_f64();
+    let rule = record.stop_rule()?;
+    let truth = record.sim_model(instrument)?.map(|m| m.material_spec);
+    let mut measurer = progressive::LevelMeasurer {
+        out,
+        port,
+        instrument: &instrument,
+        calibration: &cal,
+        wire: &planned.wire,
+        options: &req.options,
+        faults: req.faults,
+        record: record.clone(),
+        first: Some(connection),
+        journal_exists: resume,
+        summary: Default::default(),
+        wall_s: 0.0,
+        resumed: None,
+        injected: None,
+        journal: None,
+    };
+    let mut values = Vec::new();
+    let loop_start = Instant::now();
+    let result = closed_loop::run::<ScanError>(
+        &planned.plan,
+        &rule,
+        truth.as_deref(),
+        &mut |level| {
+            let v = measurer.measure(level, progress)?;
+            values.clone_from(&v);
+            Ok(v)
+        },
+        &mut |a| note(&closed_loop::level_line(a)),
+    );
+    let closed = result?;
+    let loop_s = loop_start.elapsed().as_secs_f64();
+    note(&closed.stop_reason);
+    let mut record = measurer.record.clone();
+    let measured = measurer.into_measured()?;
+    times.measure += measured.wall_s;
+    // Host time between levels: reconstructions, error estimates and decisions.
+    times.reconstruct = (loop_s - measured.wall_s).max(0.0);
     if let Some(sim) = sim {
         sim.stop();
     }
+    record.level = closed.stop_level;
+    let plan = planned.plan.clone().truncate(closed.stop_level);
+    let values = &values[..plan.directions.len().min(values.len())];
     let t = Instant::now();
-    let values = calibrated_values(&measured.journal, planned.wire.len(), &instrument, &cal)?;
-    let grid = crate::reconstruct::reconstruct(&planned.plan, record.level, &values)?;
-    times.reconstruct = t.elapsed().as_secs_f64();
-    let t = Instant::now();
-    let truth = record.sim_model(instrument)?.map(|m| m.material_spec);
     let report = outputs::write_all(&outputs::OutputInputs {
         out,
         record: &record,
-        plan: &planned.plan,
-        values: &values,
+        plan: &plan,
+        values,
         journal: &measured.journal,
         instrument: &instrument,
         calibration: &cal,
-        grid: &grid,
+        grid: &closed.reconstruction,
         truth: truth.as_deref(),
     })?;
+    plot::write_levels(&out.join(LEVELS_PNG), &closed.levels).map_err(ScanError::Input)?;
     times.outputs = t.elapsed().as_secs_f64();
-    let report = outputs::finish_report(out, report, &record, &planned.plan, &measured, &times)?;
+    let mut report = outputs::finish_report(
+        out,
+        report,
+        &record,
+        &plan,
+        &measured,
+        &times,
+        &progressive::levels_markdown(&closed.levels, &closed.stop_reason, &record.rule),
+    )?;
+    report
+        .files
+        .insert(report.files.len().saturating_sub(1), LEVELS_PNG.to_string());
     Ok(ScanOutcome {
         record,
+        levels: closed.levels,
+        stop_reason: closed.stop_reason,
         measured,
         report,
         times,
     })
 }
+
+/// The per-level chart's file name in OUTDIR.
+pub const LEVELS_PNG: &str = "levels.png";
 
 type Prepared = (ScanRecord, Planned, Calibration, Option<SimModel>);
 
@@ -532,6 +547,7 @@ fn prepare_fresh(
         ));
     }
     // Every input is read and checked before the (slow) estimate and plan.
+    level_of(f.max_grid)?;
     let (instrument_toml, origin) = match &f.instrument {
         Some(p) => (std::fs::read_to_string(p).map_err(io_err(p))?, p.clone()),
         None => (
@@ -570,15 +586,20 @@ fn prepare_fresh(
     times.estimate = t.elapsed().as_secs_f64();
     note(&format!("estimate: {} ({:.2} s)", photo.spec(), times.estimate));
     let t = Instant::now();
-    let (plan, level, rule) = plan_with_rule(&instrument, &photo.estimate, f.rule)?;
-    let config = plan.config.clone();
-    let planned = encode_checked(plan.truncate(level), &instrument)?;
+    let max_level = level_of(f.max_grid)?;
+    let config = PlanConfig {
+        grids: crate::plan::square_grids(max_level),
+        ..PlanConfig::default()
+    };
+    let plan = Planner::new(instrument, photo.estimate.clone())?.plan(&config)?;
+    f.rule.last_level(&plan)?;
+    let planned = encode_checked(plan, &instrument)?;
     times.plan = t.elapsed().as_secs_f64();
     note(&format!(
-        "plan: {} directions, level {level} ({}x{} x {} incoming, {} strategy; {rule}), {:.1} min instrument time ({:.2} s)",
+        "plan: up to {} directions in {max_level} levels (to {}x{} x {} incoming, {} strategy), {:.1} min instrument time if every level is measured ({:.2} s)",
         planned.wire.len(),
-        1 << level,
-        1 << level,
+        1 << max_level,
+        1 << max_level,
         planned.plan.thetas.len(),
         planned.plan.strategy_label(),
         planned.plan.total_seconds() / 60.0,
@@ -620,13 +641,15 @@ fn prepare_fresh(
         encoder: photo.kind.name().to_string(),
         encoder_outputs: photo.outputs.clone(),
         estimate: photo.spec(),
-        rule,
+        rule: f.rule.describe(),
+        stop_rule: f.rule.to_record(),
         strategy: config.strategy.to_string(),
         spacing: config.spacing.to_string(),
         incoming: config.k,
         max_level: config.grids.len(),
-        level,
+        level: 1,
         directions: planned.wire.len(),
+        journal: JOURNAL_FILE.to_string(),
         plan_hash: format!("{:016x}", crate::journal::fnv64(&planned.bytes)),
         instrument_toml,
         render_size: f.render_size,
@@ -651,9 +674,8 @@ fn prepare_resume(out: &Path, times: &mut PhaseTimes) -> Result<Prepared, ScanEr
     let stored = std::fs::read(&plan_path).map_err(io_err(&plan_path))?;
     crate::plan::file::decode_plan(&stored).map_err(|e| ScanError::Input(format!("{}: {e}", plan_path.display())))?;
     let t = Instant::now();
-    let plan = Planner::new(instrument, record.estimate()?)?
-        .plan(&record.plan_config()?)?
-        .truncate(record.level);
+    let plan = Planner::new(instrument, record.estimate()?)?.plan(&record.plan_config()?)?;
+    record.stop_rule()?;
     let planned = encode_checked(plan, &instrument)?;
     times.plan = t.elapsed().as_secs_f64();
     if planned.bytes != stored {

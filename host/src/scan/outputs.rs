@@ -328,6 +328,7 @@ pub fn finish_report(
     plan: &Plan,
     measured: &crate::link::Measured,
     times: &PhaseTimes,
+    levels_md: &str,
 ) -> Result<Report, OutputError> {
     let mut md = String::new();
     let _ = writeln!(md, "# gonio scan report\n");
@@ -352,7 +353,7 @@ pub fn finish_report(
     }
     let _ = writeln!(
         md,
-        "- plan: {} strategy, {} spacing, {} incoming elevations, level {} ({}x{} outgoing); rule: {}",
+        "- plan: {} strategy, {} spacing, {} incoming elevations; stopped at level {} ({}x{} outgoing); rule: {}",
         plan.strategy_label(),
         record.spacing,
         record.incoming,
@@ -361,6 +362,7 @@ pub fn finish_report(
         1 << record.level,
         record.rule
     );
+    let _ = writeln!(md, "\n{levels_md}");
     let _ = writeln!(md, "\n## Counts\n");
     let _ = writeln!(
         md,
@@ -382,7 +384,7 @@ pub fn finish_report(
     let s = &measured.summary;
     let _ = writeln!(
         md,
-        "\nmeasured {} directions in this run ({} resumed from the journal); instrument time of this run {:.1} s (planned for the whole scan {:.1} s); {} reconnects, {} retransmitted frames",
+        "\nmeasured {} directions in this run ({} resumed from the journal); instrument time of this run {:.1} s (planned up to the stop level {:.1} s); {} reconnects, {} retransmitted frames",
         s.measured_now,
         measured.resumed,
         s.instrument_s,

@@ -169,3 +169,46 @@ pub fn run_tradeoff(args: TradeoffArgs) -> Result<()> {
         tradeoff::run(&cfg, &instrument, env, &args.output, progress)
     })
 }
+
+#[derive(clap::Args)]
+pub struct ClosedLoopArgs {
+    /// Material set (training: where the estimator's constants are chosen).
+    #[arg(long, value_enum)]
+    pub preset: tradeoff::closed_loop::LoopPreset,
+    /// Material specs instead of the preset's (repeatable).
+    #[arg(long = "material")]
+    pub materials: Vec<String>,
+    #[arg(long)]
+    pub instrument: Option<PathBuf>,
+    /// Finest grid (power of two).
+    #[arg(long, default_value_t = 16)]
+    pub max_grid: usize,
+    /// Summarise the rows of an earlier run's closed-loop.csv (with the product's current
+    /// constants) instead of running the loop again.
+    #[arg(long, value_name = "CSV")]
+    pub rows: Option<PathBuf>,
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+pub fn run_closed_loop(args: ClosedLoopArgs) -> Result<()> {
+    let instrument = gonio::instrument::load_or_default(args.instrument.as_deref())?;
+    let max_level = level_of(args.max_grid, "--max-grid")?;
+    let materials = if args.materials.is_empty() {
+        args.preset.materials()
+    } else {
+        args.materials
+    };
+    let bar = indicatif::ProgressBar::new(materials.len() as u64);
+    with_progress(bar, |progress| {
+        tradeoff::closed_loop::run(
+            args.preset,
+            &materials,
+            &instrument,
+            max_level,
+            args.rows.as_deref(),
+            &args.output,
+            progress,
+        )
+    })
+}
