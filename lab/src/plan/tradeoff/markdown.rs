@@ -309,7 +309,8 @@ pub(super) fn geometric_means(s: &mut String, cfg: &TradeoffConfig, rows: &[Trad
     );
     for st in &cfg.strategies {
         let name = st.to_string();
-        let mine: Vec<&TradeRow> = rows.iter().filter(|r| r.strategy == name).collect();
+        // Level 0: the peer's own small counts, which no other strategy has (`peer::markdown`).
+        let mine: Vec<&TradeRow> = rows.iter().filter(|r| r.strategy == name && r.level > 0).collect();
         let gm = |f: fn(&TradeRow) -> f64| -> f64 {
             let n = mine.len().max(1) as f64;
             (mine.iter().map(|r| f(r).max(PLOT_FLOOR).ln()).sum::<f64>() / n).exp()
