@@ -7,6 +7,7 @@ use std::process::ExitCode;
 
 mod cli {
     pub mod encoder;
+    pub mod peer;
     pub mod plan;
 
     use clap::builder::{PossibleValuesParser, TypedValueParser};
@@ -43,6 +44,8 @@ enum Command {
     /// The closed loop in simulation: its error estimate, calibration, stop rules against the
     /// oracle, and closed loop / uniform at equal directions (--preset training|heldout|real).
     ClosedLoop(cli::plan::ClosedLoopArgs),
+    /// The nielsen2015 peer side by side with adaptive and uniform, held-out MERL and the real measurements.
+    Peer(cli::peer::PeerArgs),
     /// Render an encoder dataset (examples/capture.toml with random or MERL materials).
     Dataset(cli::encoder::DatasetArgs),
     /// Train an encoder on a dataset and write ONNX (needs `--features train`).
@@ -66,6 +69,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::PlanReport(args) => cli::plan::run_plan_report(args),
         Command::Tradeoff(args) => cli::plan::run_tradeoff(args),
         Command::ClosedLoop(args) => cli::plan::run_closed_loop(args),
+        Command::Peer(args) => cli::peer::run_peer(args),
         Command::Dataset(args) => cli::encoder::run_dataset(args),
         Command::Train(args) => cli::encoder::run_train(args),
         Command::EncoderReport(args) => cli::encoder::run_report(args),

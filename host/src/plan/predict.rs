@@ -10,6 +10,7 @@ use crate::brdf::Material;
 use crate::reconstruct::{reconstruct_with, NoPrior};
 use crate::render::brdf_sampling::BrdfSampler;
 use crate::render::metrics::{compare, Comparison};
+use crate::render::quadrature::{render_quadrature, EnvQuadrature};
 use crate::render::{render_plain, Image, Scene};
 use glam::DVec3;
 use std::path::Path;
@@ -21,7 +22,8 @@ const CAPTURE_SCENE: &str = include_str!("../../../examples/sphere-point.toml");
 /// scene; scores BRDF-space error over the fit's direction set.
 pub struct Scorer {
     scene: Scene,
-    env: Option<Scene>,
+    /// The environment-lit scene and its fixed light directions.
+    env: Option<(Scene, EnvQuadrature)>,
     pairs: Vec<(DVec3, DVec3)>,
 }
 
@@ -38,9 +40,18 @@ impl Scorer {
         })
     }
 
-    /// Also render under `env` (e.g. `examples/sphere-sky.toml`), with its own camera and settings.
+    /// Also render under `env` (e.g. `examples/sphere-sky.toml`), with its own camera and sub-pixel
+    /// grid; its environment is lit by `EnvQuadrature::of` (a scene without one renders its delta
+    /// lights only).
     pub fn with_env(mut self, env: Scene) -> Self {
-        self.env = Some(env);
+        let quad = env.environment.as_ref().map_or(
+            EnvQuadrature {
+                directions: Vec::new(),
+                weights: Vec::new(),
+            },
+            EnvQuadrature::of,
+        );
+        self.env = Some((env, quad));
         self
     }
 
@@ -49,15 +60,16 @@ impl Scorer {
         render_plain(&self.scene, &self.scene.settings, &|| {})
     }
 
-    /// The environment render, importance-sampled as `sampler_spec` would be. Give the truth and
-    /// its reconstructions the same `sampler_spec` (and the scene its fixed seed): then every
-    /// render draws the same random numbers and the Monte Carlo noise largely cancels in the
-    /// comparison, leaving the BRDF difference.
+    /// The environment render: deterministic quadrature over the map's fixed light directions
+    /// (`render::quadrature`), so the truth and its reconstructions are lit by the same directions
+    /// and two runs agree exactly. `sampler_spec` no longer changes the image (nothing is sampled);
+    /// it is kept so that callers name the truth's spec as before, and sets the scene's sampler for
+    /// anyone who renders the scene by Monte Carlo afterwards.
     pub fn render_env(&mut self, material: Box<dyn Material>, sampler_spec: &str) -> Option<Image> {
-        let env = self.env.as_mut()?;
+        let (env, quad) = self.env.as_mut()?;
         env.material = material;
         env.sampler = BrdfSampler::for_spec(sampler_spec);
-        Some(render_plain(env, &env.settings, &|| {}))
+        Some(render_quadrature(env, quad))
     }
 
     /// `brdf_log_err`: `log_err_over` the documented direction set.

@@ -78,6 +78,16 @@ impl EnvMap {
         Self::build(texels, 1.0)
     }
 
+    /// The map's texels, without the scale.
+    pub fn texels(&self) -> &Image {
+        &self.texels
+    }
+
+    /// The radiance scale applied to every texel.
+    pub fn scale(&self) -> f64 {
+        self.scale
+    }
+
     /// Incoming radiance from world direction `dir` (unit), scale applied.
     pub fn radiance(&self, dir: DVec3) -> DVec3 {
         let uv = direction_to_uv(dir);

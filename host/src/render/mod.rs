@@ -6,6 +6,7 @@
 //! * `renderer`: exact delta lights, MIS for the environment, stratified antialiasing, rayon rows.
 //! * `effects`: sensor/instrument effects on single readings and on images (built only when listed).
 //! * `image`: the image type and its EXR/PNG files; `metrics`: RMSE, PSNR, FLIP.
+//! * `quadrature`: the deterministic environment render the lab scores with (fixed light directions).
 //! * `sky`: the procedural sky shipped as `examples/sky.exr`.
 
 pub mod brdf_sampling;
@@ -16,6 +17,7 @@ mod error;
 pub mod geometry;
 pub mod image;
 pub mod metrics;
+pub mod quadrature;
 pub mod renderer;
 pub mod scene;
 pub mod sky;

@@ -75,7 +75,7 @@ pub struct TradeoffArgs {
     /// Environment render side in pixels.
     #[arg(long, default_value_t = 256)]
     pub env_size: usize,
-    /// Environment samples per pixel.
+    /// Environment samples per pixel: unused since the score renders by quadrature (`render::quadrature`); kept for old command lines.
     #[arg(long, default_value_t = 64)]
     pub env_spp: u32,
     /// Also write DIR/renders/MATERIAL.png per material: the truth's renders on the first row, then one

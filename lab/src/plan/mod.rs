@@ -4,6 +4,7 @@
 
 pub use gonio::plan::*;
 
+pub mod nielsen;
 pub mod photo_samples;
 pub mod report;
 pub mod tradeoff;

@@ -79,9 +79,9 @@ pub(super) fn markdown(cfg: &TradeoffConfig, rows: &[TradeRow], about: &str) -> 
         "# Accuracy vs measurement time\n\nRegenerate: `{}` (release build; instrument `examples/gonio.toml`).\n\n\
          Render setup. Point light: `examples/sphere-point.toml` (orthographic sphere, one point light), {} x {} px, \
          2 x 2 sub-pixels. Environment light: `examples/sphere-sky.toml` (sphere in the procedural sky `examples/sky.exr`, \
-         perspective camera, background = the sky), {} x {} px, {} environment samples per pixel (MIS with one BRDF \
-         sample each), 2 x 2 sub-pixels, seed 1; the truth and every reconstruction of a material draw the same random \
-         numbers (same seed, same BRDF sampler: the truth's), so Monte Carlo noise largely cancels. Errors on the 8-bit \
+         perspective camera, background = the sky), {} x {} px, 2 x 2 sub-pixels, lit by deterministic quadrature over \
+         the map cut into {} x {} cells (`render::quadrature`: no random numbers, `--env-spp` unused; the truth and every \
+         reconstruction are lit by the same directions, so the score is free of Monte Carlo noise). Errors on the 8-bit \
          sRGB images (exposure 1, clipped, values / 255, peak 1, whole image including the background), mean LDR FLIP; \
          `brdf_log_err` = mean over the fixed direction set of `gonio brdf fit` of |log(1 + f cos) - log(1 + f_rec cos)| \
          over RGB. Ground truth: the material itself (MERL materials: their neural fits, not the raw tables). \
@@ -94,7 +94,8 @@ pub(super) fn markdown(cfg: &TradeoffConfig, rows: &[TradeRow], about: &str) -> 
         cfg.size,
         cfg.env_size,
         cfg.env_size,
-        cfg.env_spp,
+        gonio::render::quadrature::DEFAULT_COLS,
+        gonio::render::quadrature::DEFAULT_ROWS,
         cfg.prior,
         about
     );
@@ -308,7 +309,8 @@ pub(super) fn geometric_means(s: &mut String, cfg: &TradeoffConfig, rows: &[Trad
     );
     for st in &cfg.strategies {
         let name = st.to_string();
-        let mine: Vec<&TradeRow> = rows.iter().filter(|r| r.strategy == name).collect();
+        // Level 0: the peer's own small counts, which no other strategy has (`peer::markdown`).
+        let mine: Vec<&TradeRow> = rows.iter().filter(|r| r.strategy == name && r.level > 0).collect();
         let gm = |f: fn(&TradeRow) -> f64| -> f64 {
             let n = mine.len().max(1) as f64;
             (mine.iter().map(|r| f(r).max(PLOT_FLOOR).ln()).sum::<f64>() / n).exp()

@@ -32,7 +32,9 @@ use std::path::Path;
 use std::time::Instant;
 
 pub mod closed_loop;
+mod liu;
 mod markdown;
+mod peer;
 mod presets;
 
 use markdown::*;
@@ -50,6 +52,8 @@ pub enum TradeStrategy {
     Mixture,
     /// Equal steps in (theta_o, phi_o).
     Uniform,
+    /// The data-driven peer, Nielsen et al. 2015 (`peer`, docs/nielsen2015.md).
+    Nielsen2015,
 }
 
 pub const ALL_STRATEGIES: [TradeStrategy; 4] = [
@@ -66,6 +70,7 @@ impl fmt::Display for TradeStrategy {
             TradeStrategy::AdaptiveTrue => "adaptive-true",
             TradeStrategy::Mixture => "mixture",
             TradeStrategy::Uniform => "uniform",
+            TradeStrategy::Nielsen2015 => peer::NAME,
         })
     }
 }
@@ -75,7 +80,8 @@ impl TradeStrategy {
         match self {
             TradeStrategy::Adaptive | TradeStrategy::AdaptiveTrue => Strategy::Auto,
             TradeStrategy::Mixture => Strategy::Mixture,
-            TradeStrategy::Uniform => Strategy::Uniform,
+            // The peer places its own directions (`peer`); no plan is built from this.
+            TradeStrategy::Uniform | TradeStrategy::Nielsen2015 => Strategy::Uniform,
         }
     }
     /// Whether the plan is built from the photo estimate (else from the true parameters). The
@@ -240,6 +246,8 @@ pub struct TradeRow {
     pub psnr_env: f64,
     pub flip_env: f64,
     pub brdf_log_err: f64,
+    /// Liu et al. 2023's metric over 25,000 random pairs (`liu`).
+    pub liu_log_err: f64,
     /// Host compute before the scan: photo -> estimate (encoder; the GGX fit for adaptive-true of a
     /// non-analytic material; 0 otherwise) and estimate -> ordered, timed plan (all levels).
     pub estimate_seconds: f64,
@@ -301,6 +309,11 @@ pub fn run(
     env_scene.camera.height = cfg.env_size;
     env_scene.settings.spp = cfg.env_spp;
     let mut scorer = Scorer::new(cfg.size)?.with_env(env_scene);
+    let liu = liu::liu_pairs();
+    let peer = match cfg.strategies.contains(&TradeStrategy::Nielsen2015) {
+        true => Some(peer::Peer::new(cfg, instrument)?),
+        false => None,
+    };
     // Resolve every material and estimate first: a bad spec fails before any long work.
     let needs_photo = cfg.strategies.iter().any(|s| s.uses_photo());
     let encoder = if needs_photo {
@@ -349,6 +362,12 @@ pub fn run(
         for &strategy in &cfg.strategies {
             let mut sheet_row: Vec<Image> = Vec::new();
             let mut sheet_env: Vec<Image> = Vec::new();
+            if let (TradeStrategy::Nielsen2015, Some(p)) = (strategy, &peer) {
+                let truths = (&truth_img, &truth_env);
+                rows.extend(p.rows(spec, truth.as_ref(), &mut scorer, truths, &liu, cfg.k, progress)?);
+                sheet_rows.push(Vec::new());
+                continue;
+            }
             let (estimate, estimate_seconds) = match (strategy.uses_photo(), photo) {
                 (true, Some((e, s))) => (e, *s),
                 (false, _) => (&true_est.0, true_est.1),
@@ -367,6 +386,7 @@ pub fn run(
             for l in &plan.levels {
                 let grid = reconstruct_with(&plan, l.level, &measured, prior.as_ref())?;
                 let log_err = scorer.log_err(truth.as_ref(), &grid);
+                let liu_log_err = super::predict::log_err_over(&liu, truth.as_ref(), &grid);
                 let point_img = scorer.render(Box::new(grid.clone()));
                 let point = score(&truth_img, &point_img)?;
                 let env_img = scorer
@@ -396,6 +416,7 @@ pub fn run(
                     psnr_env: env.psnr,
                     flip_env: env.flip,
                     brdf_log_err: log_err,
+                    liu_log_err,
                     estimate_seconds,
                     plan_seconds,
                     host_seconds: estimate_seconds + plan_seconds,
@@ -424,7 +445,7 @@ pub fn run(
         }
     }
     let about = inputs.first().map_or("", |i| i.4.about());
-    let md = markdown(cfg, &rows, about);
+    let md = markdown(cfg, &rows, about) + &peer.map_or(String::new(), |_| peer::markdown(cfg, &rows));
     let (tw, th, rgb) = chart_rgb(cfg, &rows)?;
     let table = csv(&rows)?;
     // Every output is computed before the first write; each is written atomically.

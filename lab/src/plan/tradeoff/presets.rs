@@ -87,3 +87,11 @@ pub const HELDOUT_MATERIALS: [&str; 15] = [
     "nbrdf:white-fabric2",
     "nbrdf:yellow-plastic",
 ];
+
+/// The three real pgII measurements of `../shared/data/rgl` (RGL database, CC0), as specs relative
+/// to the repository root: every accuracy claim is reported on them too (DESIGN.md).
+pub const REAL_MATERIALS: [&str; 3] = [
+    "rgl:../shared/data/rgl/satin_rosaline_rgb.bsdf",
+    "rgl:../shared/data/rgl/cc_iris_purple_gem_rgb.bsdf",
+    "rgl:../shared/data/rgl/paper_white_rgb.bsdf",
+];

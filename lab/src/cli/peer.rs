@@ -1,0 +1,72 @@
+//! `gonio-lab peer`: the `nielsen2015` side-by-side run (issue 28) in one command: the trade-off
+//! report of `adaptive`, `uniform` and `nielsen2015` on the encoder's held-out MERL materials and
+//! on the three real RGL measurements, into OUTPUT/heldout and OUTPUT/real.
+
+use anyhow::{bail, Context, Result};
+use gonio_lab::plan::tradeoff::{self, Preset, TradeStrategy, TradeoffConfig, REAL_MATERIALS};
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct PeerArgs {
+    #[arg(long)]
+    pub instrument: Option<PathBuf>,
+    /// Environment-lit scene (its environment map is read relative to it).
+    #[arg(long, default_value = "examples/sphere-sky.toml")]
+    pub env_scene: PathBuf,
+    /// Environment render side in pixels.
+    #[arg(long, default_value_t = 128)]
+    pub env_size: usize,
+    /// Only the held-out MERL run, or only the real one.
+    #[arg(long, value_parser = ["heldout", "real"])]
+    pub only: Option<String>,
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+pub fn run_peer(args: PeerArgs) -> Result<()> {
+    let instrument = gonio::instrument::load_or_default(args.instrument.as_deref())?;
+    if !(16..=1024).contains(&args.env_size) {
+        bail!("--env-size {} must be in 16..=1024", args.env_size);
+    }
+    let strategies = vec![
+        TradeStrategy::Adaptive,
+        TradeStrategy::Uniform,
+        TradeStrategy::Nielsen2015,
+    ];
+    let runs = [
+        (
+            "heldout",
+            TradeoffConfig {
+                strategies: strategies.clone(),
+                env_size: args.env_size,
+                ..TradeoffConfig::preset(Preset::Heldout)
+            },
+        ),
+        (
+            "real",
+            TradeoffConfig {
+                materials: REAL_MATERIALS.iter().map(|s| s.to_string()).collect(),
+                strategies,
+                env_size: args.env_size,
+                ..TradeoffConfig::default()
+            },
+        ),
+    ];
+    for (name, cfg) in runs {
+        if args.only.as_deref().is_some_and(|o| o != name) {
+            continue;
+        }
+        let env = gonio::render::Scene::load(&args.env_scene).with_context(|| "--env-scene".to_string())?;
+        let dir = args.output.join(name);
+        eprintln!("== {name}: {} materials -> {}", cfg.materials.len(), dir.display());
+        let md = tradeoff::run(&cfg, &instrument, env, &dir, &|line| eprintln!("{line}"))?;
+        let note = format!(
+            "\nRegenerate this folder and its sibling with one command: `gonio-lab peer -o {}` (release build, from the repository root).\n",
+            args.output.display()
+        );
+        std::fs::write(dir.join("tradeoff.md"), md.clone() + &note)
+            .with_context(|| format!("{}", dir.join("tradeoff.md").display()))?;
+        print!("{md}");
+    }
+    Ok(())
+}
