@@ -45,11 +45,42 @@ pub struct MerlTable {
 
 /// Continuous bin coordinates (bin i spans [i, i + 1)) of a pair, `None` without a half vector.
 fn bin_coords(wi: DVec3, wo: DVec3) -> Option<[f64; 3]> {
+    layout_coords(wi, wo, [N_THETA_H, N_THETA_D, N_PHI_D])
+}
+
+/// Continuous bin coordinates of a pair in MERL's layout at any resolution `[theta_h, theta_d,
+/// phi_d]` (theta_h on a square-root scale, phi_d folded into [0, pi)); `None` without a half vector.
+pub fn layout_coords(wi: DVec3, wo: DVec3, dims: [usize; 3]) -> Option<[f64; 3]> {
     let hd = to_half_diff(wi, wo)?;
-    let th = (hd.theta_h.max(0.0) / FRAC_PI_2).sqrt() * N_THETA_H as f64;
-    let td = hd.theta_d.max(0.0) / FRAC_PI_2 * N_THETA_D as f64;
+    let th = (hd.theta_h.max(0.0) / FRAC_PI_2).sqrt() * dims[0] as f64;
+    let td = hd.theta_d.max(0.0) / FRAC_PI_2 * dims[1] as f64;
     let pd = if hd.phi_d < 0.0 { hd.phi_d + PI } else { hd.phi_d };
-    Some([th, td, pd / PI * N_PHI_D as f64])
+    Some([th, td, pd / PI * dims[2] as f64])
+}
+
+/// Trilinear lookup between bin centres of a MERL-layout grid of `dims` bins: phi_d periodic, the
+/// other two clamped at the first and last centre; `bin(th, td, pd)` reads one bin.
+pub fn layout_trilinear(b: [f64; 3], dims: [usize; 3], bin: impl Fn(usize, usize, usize) -> DVec3) -> DVec3 {
+    // Position relative to the centres: centre i sits at i + 1/2.
+    let clamped = |x: f64, n: usize| {
+        let p = (x - 0.5).clamp(0.0, (n - 1) as f64);
+        let i = (p.floor() as usize).min(n - 2);
+        (i, i + 1, p - i as f64)
+    };
+    let (h0, h1, fh) = clamped(b[0], dims[0]);
+    let (d0, d1, fd) = clamped(b[1], dims[1]);
+    let p = (b[2] - 0.5).rem_euclid(dims[2] as f64);
+    let p0 = (p.floor() as usize).min(dims[2] - 1);
+    let (p1, fp) = ((p0 + 1) % dims[2], p - p0 as f64);
+    let mut acc = DVec3::ZERO;
+    for (h, wh) in [(h0, 1.0 - fh), (h1, fh)] {
+        for (d, wd) in [(d0, 1.0 - fd), (d1, fd)] {
+            for (q, wp) in [(p0, 1.0 - fp), (p1, fp)] {
+                acc += wh * wd * wp * bin(h, d, q);
+            }
+        }
+    }
+    acc
 }
 
 fn index(th: usize, td: usize, pd: usize) -> usize {
@@ -159,26 +190,7 @@ impl MerlTable {
     }
 
     fn trilinear(&self, b: [f64; 3]) -> DVec3 {
-        // Position relative to the centres: centre i sits at i + 1/2.
-        let clamped = |x: f64, n: usize| {
-            let p = (x - 0.5).clamp(0.0, (n - 1) as f64);
-            let i = (p.floor() as usize).min(n - 2);
-            (i, i + 1, p - i as f64)
-        };
-        let (h0, h1, fh) = clamped(b[0], N_THETA_H);
-        let (d0, d1, fd) = clamped(b[1], N_THETA_D);
-        let p = (b[2] - 0.5).rem_euclid(N_PHI_D as f64);
-        let p0 = (p.floor() as usize).min(N_PHI_D - 1);
-        let (p1, fp) = ((p0 + 1) % N_PHI_D, p - p0 as f64);
-        let mut acc = DVec3::ZERO;
-        for (h, wh) in [(h0, 1.0 - fh), (h1, fh)] {
-            for (d, wd) in [(d0, 1.0 - fd), (d1, fd)] {
-                for (q, wp) in [(p0, 1.0 - fp), (p1, fp)] {
-                    acc += wh * wd * wp * self.bin(index(h, d, q));
-                }
-            }
-        }
-        acc
+        layout_trilinear(b, [N_THETA_H, N_THETA_D, N_PHI_D], |h, d, q| self.bin(index(h, d, q)))
     }
 }
 

@@ -3,7 +3,8 @@
 //! a bin's value, and a table of such bins as a `Material` (trilinear between bin centres).
 
 use glam::DVec3;
-use gonio::brdf::half_diff::{from_half_diff, to_half_diff};
+use gonio::brdf::half_diff::from_half_diff;
+use gonio::brdf::merl::{layout_coords, layout_trilinear};
 use gonio::brdf::Material;
 use std::f64::consts::{FRAC_PI_2, PI};
 
@@ -11,6 +12,7 @@ pub const N_THETA_H: usize = 32;
 pub const N_THETA_D: usize = 32;
 pub const N_PHI_D: usize = 64;
 pub const BINS: usize = N_THETA_H * N_THETA_D * N_PHI_D;
+const DIMS: [usize; 3] = [N_THETA_H, N_THETA_D, N_PHI_D];
 
 /// Nielsen et al.'s mapping: the cosine product is clipped below at this value ...
 pub const COS_FLOOR: f64 = 0.01;
@@ -44,11 +46,7 @@ pub fn centre(bin: usize) -> Option<(DVec3, DVec3)> {
 
 /// Continuous bin coordinates of a pair (bin i spans [i, i + 1)), `None` without a half vector.
 pub fn coords(wi: DVec3, wo: DVec3) -> Option<[f64; 3]> {
-    let hd = to_half_diff(wi, wo)?;
-    let th = (hd.theta_h.max(0.0) / FRAC_PI_2).sqrt() * N_THETA_H as f64;
-    let td = hd.theta_d.max(0.0) / FRAC_PI_2 * N_THETA_D as f64;
-    let pd = if hd.phi_d < 0.0 { hd.phi_d + PI } else { hd.phi_d };
-    Some([th, td, pd / PI * N_PHI_D as f64])
+    layout_coords(wi, wo, DIMS)
 }
 
 /// The clipped cosine product of a pair.
@@ -89,25 +87,7 @@ impl Material for BinnedBrdf {
         let Some(b) = coords(wi, wo) else {
             return DVec3::ZERO;
         };
-        let clamped = |x: f64, n: usize| {
-            let p = (x - 0.5).clamp(0.0, (n - 1) as f64);
-            let i = (p.floor() as usize).min(n - 2);
-            (i, i + 1, p - i as f64)
-        };
-        let (h0, h1, fh) = clamped(b[0], N_THETA_H);
-        let (d0, d1, fd) = clamped(b[1], N_THETA_D);
-        let p = (b[2] - 0.5).rem_euclid(N_PHI_D as f64);
-        let p0 = (p.floor() as usize).min(N_PHI_D - 1);
-        let (p1, fp) = ((p0 + 1) % N_PHI_D, p - p0 as f64);
-        let mut acc = DVec3::ZERO;
-        for (h, wh) in [(h0, 1.0 - fh), (h1, fh)] {
-            for (d, wd) in [(d0, 1.0 - fd), (d1, fd)] {
-                for (q, wp) in [(p0, 1.0 - fp), (p1, fp)] {
-                    acc += wh * wd * wp * self.bin(h, d, q);
-                }
-            }
-        }
-        acc
+        layout_trilinear(b, DIMS, |h, d, q| self.bin(h, d, q))
     }
 }
 
