@@ -14,8 +14,8 @@
 use super::envmap::{uv_to_direction, EnvMap};
 use super::geometry::Hit;
 use super::image::Image;
-use super::renderer::Frame;
-use super::scene::{Background, Scene};
+use super::renderer::{supersample, Frame};
+use super::scene::Scene;
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 use std::f64::consts::PI;
@@ -106,29 +106,7 @@ pub fn render_quadrature(scene: &Scene, quad: &EnvQuadrature) -> Image {
 }
 
 fn pixel(scene: &Scene, quad: &EnvQuadrature, x: usize, y: usize) -> DVec3 {
-    let n = scene.settings.pixel_samples.max(1) as usize;
-    let mut sum = DVec3::ZERO;
-    for sy in 0..n {
-        for sx in 0..n {
-            let px = x as f64 + (sx as f64 + 0.5) / n as f64;
-            let py = y as f64 + (sy as f64 + 0.5) / n as f64;
-            let ray = scene.camera.ray(px, py);
-            sum += match scene.shape.intersect(&ray) {
-                Some(hit) => shade(scene, quad, &hit, -ray.dir),
-                None => match (&scene.environment, scene.settings.background) {
-                    (Some(env), Background::Environment) => env.radiance(ray.dir),
-                    _ => DVec3::ZERO,
-                },
-            };
-        }
-    }
-    let value = sum / (n * n) as f64;
-    // As in the renderer: a NaN must never reach a file.
-    if value.is_finite() {
-        value
-    } else {
-        DVec3::ZERO
-    }
+    supersample(scene, &scene.settings, x, y, |hit, wo| shade(scene, quad, hit, wo))
 }
 
 fn shade(scene: &Scene, quad: &EnvQuadrature, hit: &Hit, wo_world: DVec3) -> DVec3 {

@@ -58,6 +58,21 @@ fn pixel(scene: &Scene, settings: &RenderSettings, x: usize, y: usize) -> DVec3 
         let index = (y * scene.camera.width + x) as u64;
         ChaCha8Rng::seed_from_u64(stream_seed(settings.seed, RENDER_STREAM, index))
     });
+    supersample(scene, settings, x, y, |hit, wo| {
+        shade(scene, hit, wo, env_samples, rng.as_mut())
+    })
+}
+
+/// A pixel's value: the mean over its pixel_samples x pixel_samples stratum centres of
+/// `shade_hit(hit, wo)` where the ray meets the object, else the background (as `settings` say).
+pub(super) fn supersample(
+    scene: &Scene,
+    settings: &RenderSettings,
+    x: usize,
+    y: usize,
+    mut shade_hit: impl FnMut(&Hit, DVec3) -> DVec3,
+) -> DVec3 {
+    let n = settings.pixel_samples.max(1) as usize;
     let mut sum = DVec3::ZERO;
     for sy in 0..n {
         for sx in 0..n {
@@ -65,7 +80,7 @@ fn pixel(scene: &Scene, settings: &RenderSettings, x: usize, y: usize) -> DVec3 
             let py = y as f64 + (sy as f64 + 0.5) / n as f64;
             let ray = scene.camera.ray(px, py);
             sum += match scene.shape.intersect(&ray) {
-                Some(hit) => shade(scene, &hit, -ray.dir, env_samples, rng.as_mut()),
+                Some(hit) => shade_hit(&hit, -ray.dir),
                 None => match (&scene.environment, settings.background) {
                     (Some(env), Background::Environment) => env.radiance(ray.dir),
                     _ => DVec3::ZERO,
