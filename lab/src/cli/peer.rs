@@ -66,9 +66,11 @@ pub fn run_peer(args: PeerArgs) -> Result<()> {
         let dir = args.output.join(name);
         eprintln!("== {name}: {} materials -> {}", cfg.materials.len(), dir.display());
         let md = tradeoff::run(&cfg, &instrument, env, &dir, &|line| eprintln!("{line}"))?;
+        // The command line as run, so a folder made with --only/--env-size/--levels says so.
+        let command: Vec<String> = std::env::args().skip(1).collect();
         let note = format!(
-            "\nRegenerate this folder and its sibling with one command: `gonio-lab peer -o {}` (release build, from the repository root).\n",
-            args.output.display()
+            "\nRegenerate this folder with the command that made it: `gonio-lab {}` (release build, from the repository root).\n",
+            command.join(" ")
         );
         std::fs::write(dir.join("tradeoff.md"), md.clone() + &note)
             .with_context(|| format!("{}", dir.join("tradeoff.md").display()))?;
