@@ -8,7 +8,7 @@
 //! the equal-directions ratios closed loop / uniform per level on point FLIP, environment FLIP
 //! (the noise-free quadrature render, `render::quadrature`) and `brdf_log_err`, and monotonicity.
 
-use super::{capture_photo, photo_estimate, HELDOUT_MATERIALS, TRAINING_MATERIALS};
+use super::{capture_photo, photo_estimate, HELDOUT_MATERIALS, REAL_MATERIALS, TRAINING_MATERIALS};
 use crate::plan::report::{csv, write};
 use gonio::brdf::parse_material;
 use gonio::encoder::infer::Encoder;
@@ -20,13 +20,6 @@ use gonio::render::Scene;
 use gonio_shared::instrument::InstrumentConfig;
 use std::fmt::Write as _;
 use std::path::Path;
-
-/// The three real pgII measurements beside the repo (`../shared/data/rgl`).
-pub const REAL_MATERIALS: [&str; 3] = [
-    "rgl:../shared/data/rgl/satin_rosaline_rgb.bsdf",
-    "rgl:../shared/data/rgl/cc_iris_purple_gem_rgb.bsdf",
-    "rgl:../shared/data/rgl/paper_white_rgb.bsdf",
-];
 
 /// Material sets of the closed-loop report.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
