@@ -63,6 +63,9 @@ impl<B: Clock + Switches + Detector, Q: SharedQueue> QueuedHal<B, Q> {
         for _ in 0..POLLS_PER_RUN {
             let real = self.board.now_us();
             self.now_us = self.now_us.max(real);
+            if device.controller().is_moving() {
+                device.check_steps_on_time(self, real);
+            }
             let moving = device.controller().is_moving();
             if moving && real >= self.switch_poll_us {
                 self.poll_switches();

@@ -367,3 +367,108 @@ fn a_limit_switch_stops_playback_at_the_instant_it_closes_and_faults() {
     assert!(!sim.dev.controller().homed());
     assert!(sim.measurements().is_empty());
 }
+
+#[test]
+fn a_fault_during_homing_drops_the_queued_segments() {
+    // The reference instrument: a tilt seek at a quarter speed queues many steps ahead.
+    let cfg = InstrumentConfig::<f32>::reference();
+    let mut sim = Sim::new(cfg, [0; 4]);
+    sim.send(HostMsg::Home);
+    // Homing starts with the tilt axis's seek; let it make 100 steps.
+    while sim.edges.iter().filter(|e| e.1 == Axis::Tilt).count() < 100 {
+        let t = sim.hal.board.real + 1_000;
+        sim.run_until(t, None);
+        sim.hal.board.real = sim.hal.board.real.max(t);
+    }
+    assert_eq!(sim.dev.controller().state(), ControllerState::Homing);
+    assert!(sim.hal.queue.with(|q| !q.is_idle()), "nothing queued ahead");
+    // A plan chunk with a direction below the horizon: rejected with a fault mid-seek.
+    sim.plan(&[dir_deg(30.0, 0.0, 100.0, 180.0)]);
+    let edges = sim.edges.len();
+    let t_fault = sim.hal.board.real;
+    sim.run_until(u64::MAX, None);
+    let faults: Vec<Fault> = sim
+        .log
+        .iter()
+        .filter_map(|m| match m {
+            DeviceMsg::Fault(f) => Some(*f),
+            _ => None,
+        })
+        .collect();
+    assert!(
+        matches!(faults[..], [Fault::Unreachable { index: 0, .. }]),
+        "{faults:?}"
+    );
+    assert!(!sim.dev.controller().is_moving());
+    assert!(sim.hal.queue.with(|q| q.is_idle()));
+    assert!(sim.stats().flushed > 0, "{:?}", sim.stats());
+    // No step after the fault: the seek did not run on into its switch.
+    assert_eq!(sim.edges.len(), edges, "steps after the fault at {t_fault} us");
+    assert_eq!(sim.dev.controller().position(), sim.hal.board.pos.map(|p| p as i32));
+}
+
+fn faults_in(log: &[DeviceMsg]) -> Vec<Fault> {
+    log.iter()
+        .filter_map(|m| match m {
+            DeviceMsg::Fault(f) => Some(*f),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn a_loop_that_falls_behind_the_step_generator_is_a_steps_late_fault() {
+    let cfg = InstrumentConfig::<f32>::reference();
+    let mut sim = Sim::new(cfg, [0; 4]);
+    sim.home();
+    sim.plan(&[dir_deg(70.0, 0.0, 10.0, 90.0), dir_deg(10.0, 0.0, 70.0, -90.0)]);
+    sim.send(HostMsg::Start);
+    let t0 = sim.hal.board.real;
+    sim.run_until(t0 + 300_000, None);
+    assert!(sim.dev.controller().is_moving());
+    // The loop stalls for 200 ms (far past what the rings hold) while the channels play on.
+    let stalled_until = sim.hal.board.real + 200_000;
+    sim.run_at = Some(stalled_until);
+    sim.run_until(u64::MAX, None);
+    assert_eq!(faults_in(&sim.log), vec![Fault::StepsLate]);
+    assert_eq!(sim.dev.controller().state(), ControllerState::Fault);
+    assert!(!sim.dev.controller().is_moving());
+    assert!(sim.hal.queue.with(|q| q.is_idle()));
+    // Positions stay counted: what the controller believes is what the motors made.
+    sim.assert_positions_true(
+        &cfg,
+        sim.dev.controller().position(),
+        sim.hal.board.pos,
+        "after the fault",
+    );
+    assert!(sim.edges.iter().all(|&(t, _)| t <= stalled_until));
+}
+
+#[test]
+fn host_frames_during_a_move_are_not_late_steps() {
+    let cfg = InstrumentConfig::<f32>::reference();
+    let mut sim = Sim::new(cfg, [0; 4]);
+    sim.home();
+    sim.plan(&[dir_deg(70.0, 0.0, 10.0, 90.0), dir_deg(10.0, 0.0, 70.0, -90.0)]);
+    sim.send(HostMsg::Start);
+    // A status request every 3 ms for the whole scan.
+    let mut frames = 0;
+    while sim.dev.controller().state() == ControllerState::Running {
+        let t = sim.hal.board.real + 3_000;
+        sim.run_until(t, None);
+        sim.hal.board.real = sim.hal.board.real.max(t);
+        sim.send(HostMsg::GetStatus);
+        frames += 1;
+    }
+    assert!(frames > 100, "{frames} frames");
+    sim.run_until(u64::MAX, None);
+    assert_eq!(
+        sim.dev.controller().state(),
+        ControllerState::Done,
+        "{:?}",
+        faults_in(&sim.log)
+    );
+    assert_eq!(faults_in(&sim.log), vec![]);
+    let st = sim.stats();
+    assert_eq!((st.overruns, st.late), (0, 0), "{st:?}");
+}
