@@ -60,12 +60,16 @@ impl<B: Clock + Switches + Detector, Q: SharedQueue> QueuedHal<B, Q> {
     /// Run the controller up to the horizon. Returns the real instant to call again (`None`:
     /// only the host can make progress). Call it also after every `Device::receive`.
     pub fn run(&mut self, device: &mut Device) -> Option<u64> {
+        // Once per turn of the loop, not per poll, and only when it is behind its own schedule
+        // clock: it is the loop that may have come back late.
+        let real = self.board.now_us();
+        if real > self.now_us && device.controller().is_moving() {
+            self.now_us = real;
+            device.check_steps_on_time(self, real);
+        }
         for _ in 0..POLLS_PER_RUN {
             let real = self.board.now_us();
             self.now_us = self.now_us.max(real);
-            if device.controller().is_moving() {
-                device.check_steps_on_time(self, real);
-            }
             let moving = device.controller().is_moving();
             if moving && real >= self.switch_poll_us {
                 self.poll_switches();
