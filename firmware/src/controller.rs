@@ -83,6 +83,9 @@ pub struct Controller {
     last_now_us: u64,
     /// When the last valid host frame arrived.
     last_host_us: u64,
+    /// `HOST_SILENT_US` for a board whose clock runs faster than the host's (the virtual gonio);
+    /// 0 = `HOST_SILENT_US` (so `new()` stays all zero bytes).
+    host_silent_us: u64,
     /// Poll again at once: the last poll ran out of its transition budget with work left, or a
     /// command arrived since.
     more_work: bool,
@@ -115,6 +118,7 @@ impl Controller {
             credit_reported: None,
             last_now_us: 0,
             last_host_us: 0,
+            host_silent_us: 0,
             more_work: false,
         }
     }
@@ -158,7 +162,18 @@ impl Controller {
     }
 
     fn host_silent_at(&self) -> u64 {
-        self.last_host_us.saturating_add(HOST_SILENT_US)
+        let silent = if self.host_silent_us == 0 {
+            HOST_SILENT_US
+        } else {
+            self.host_silent_us
+        };
+        self.last_host_us.saturating_add(silent)
+    }
+
+    /// How long a running scan goes on without a host frame, in this board's clock (a simulation
+    /// sped up against the host's wall clock scales `HOST_SILENT_US`).
+    pub fn set_host_silent_us(&mut self, us: u64) {
+        self.host_silent_us = us.max(1);
     }
 
     /// The scan's and the stepper's next deadline.

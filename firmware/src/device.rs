@@ -91,6 +91,11 @@ impl Device {
         self.controller.check_steps_on_time(hal, real_us);
     }
 
+    /// See [`Controller::set_host_silent_us`].
+    pub fn set_host_silent_us(&mut self, us: u64) {
+        self.controller.set_host_silent_us(us);
+    }
+
     pub fn controller(&self) -> &Controller {
         &self.controller
     }
