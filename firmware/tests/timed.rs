@@ -368,6 +368,40 @@ fn a_limit_switch_stops_playback_at_the_instant_it_closes_and_faults() {
     assert!(sim.measurements().is_empty());
 }
 
+/// A switch whose interrupt never fires (an edge the EXTI missed, a contact already closed) is
+/// seen by the loop's switch poll: playback stops within `SWITCH_POLL_US` and the queued steps are
+/// dropped, not played out.
+#[test]
+fn a_switch_seen_only_by_polling_stops_playback_and_drops_the_queued_steps() {
+    use gonio_firmware::timed::SWITCH_POLL_US;
+    let cfg = InstrumentConfig::<f32>::reference();
+    let mut sim = Sim::new(cfg, [0; 4]);
+    sim.home();
+    sim.plan(&[dir_deg(70.0, 0.0, 10.0, 90.0), dir_deg(10.0, 0.0, 70.0, -90.0)]);
+    sim.send(HostMsg::Start);
+    let t0 = sim.hal.board.real;
+    sim.run_until(t0 + 300_000, None);
+    assert!(sim.dev.controller().is_moving());
+    // The tilt switch closes with no interrupt: only its level changes.
+    let t_close = sim.hal.board.real + 1;
+    sim.hal.board.forced |= 1 << Axis::Tilt.index();
+    sim.run_until(u64::MAX, None);
+    let last = sim.edges.last().map_or(0, |e| e.0);
+    assert!(
+        last <= t_close + SWITCH_POLL_US,
+        "steps {} us after the switch closed",
+        last - t_close
+    );
+    assert!(
+        sim.stats().flushed > 0,
+        "queued steps were played out: {:?}",
+        sim.stats()
+    );
+    assert!(sim.hal.queue.with(|q| q.is_idle()));
+    assert_eq!(faults_in(&sim.log), vec![Fault::LimitSwitch(Axis::Tilt)]);
+    assert_eq!(sim.dev.controller().position(), sim.hal.board.pos.map(|p| p as i32));
+}
+
 #[test]
 fn a_fault_during_homing_drops_the_queued_segments() {
     // The reference instrument: a tilt seek at a quarter speed queues many steps ahead.
