@@ -9,13 +9,18 @@ use crate::plan::{Intake, PlanQueue};
 use crate::stepper::{StepError, Stepper};
 use gonio_shared::instrument::{InstrumentConfig, AXES};
 use gonio_shared::kinematics::{Kinematics, Steps, Unreachable};
-use gonio_shared::msg::caps::CHUNK_DIRECTIONS;
 use gonio_shared::msg::{
-    check_handshake, Command, ControllerState, DeviceMsg, Fault, Hello, HostMsg, Measurement, RefuseReason, Status,
+    check_handshake, Command, ControllerState, DeviceMsg, Fault, Hello, HostMsg, Measurement, RefuseReason,
 };
 use gonio_shared::separation::SeparationGuard;
 use heapless::{Deque, Vec};
 
+mod report;
+
+/// A running scan with no valid host frame for this long holds (`docs/firmware.md`, "Host
+/// liveness"): it finishes the direction in flight, keeps its readings and waits in Paused for the
+/// host's `Resume`. The host sends something at least every `LinkTiming::idle` (0.4 s).
+pub const HOST_SILENT_US: u64 = 10_000_000;
 /// Time the detector gets beyond its exposure before `Fault::DetectorTimeout`.
 pub const DETECTOR_MARGIN_US: u64 = 100_000;
 /// Once an exposure should be over, look for its readout this often.
@@ -49,6 +54,8 @@ enum PauseCause {
     Host,
     /// Resumes by itself once acknowledgements free a slot.
     MeasurementsFull,
+    /// No host frame for `HOST_SILENT_US`: waits for the host's `Resume`.
+    HostSilent,
 }
 
 /// `Option`-like fields are `heapless::Vec<_, 1>` (empty when all-zero), so `Controller::new()` is
@@ -67,14 +74,18 @@ pub struct Controller {
     phase: Phase,
     pause: PauseCause,
     last_fault: Vec<Fault, 1>,
-    /// Faults not yet sent to the host, oldest first, sent as soon as the outbox has room. At most
-    /// two can pile up (a fault that lets a move wind down, then a switch during that move).
+    /// Faults not yet sent to the host, oldest first, sent as soon as the outbox has room.
     faults_unreported: Deque<Fault, 4>,
     /// A state change the host was not told about (homing done, buffer-full pause, done).
     status_unreported: bool,
     /// The `free` of the last `Credit` sent; `None` forces one.
     credit_reported: Option<u16>,
     last_now_us: u64,
+    /// When the last valid host frame arrived.
+    last_host_us: u64,
+    /// `HOST_SILENT_US` for a board whose clock runs faster than the host's (the virtual gonio);
+    /// 0 = `HOST_SILENT_US` (so `new()` stays all zero bytes).
+    host_silent_us: u64,
     /// Poll again at once: the last poll ran out of its transition budget with work left, or a
     /// command arrived since.
     more_work: bool,
@@ -106,6 +117,8 @@ impl Controller {
             status_unreported: false,
             credit_reported: None,
             last_now_us: 0,
+            last_host_us: 0,
+            host_silent_us: 0,
             more_work: false,
         }
     }
@@ -130,20 +143,6 @@ impl Controller {
         self.last_fault.first().copied()
     }
 
-    pub fn status(&self, bad_frames: u32) -> Status {
-        Status {
-            state: self.state,
-            homed: self.homed,
-            plan_next: self.plan.next_index(),
-            plan_done: self.plan_done,
-            plan_free: if self.streaming() { self.plan.free() } else { 0 },
-            unacked: self.measurements.unacked(),
-            bad_frames,
-            steps: self.stepper.position(),
-            last_fault: self.last_fault(),
-        }
-    }
-
     /// Taking plan chunks (and granting credit for them): configured, not every direction up to
     /// the plan's end received yet, no fault, not done.
     fn streaming(&self) -> bool {
@@ -157,9 +156,36 @@ impl Controller {
         if self.more_work {
             return Some(self.last_now_us);
         }
+        // A move polls at least at each ring refill and at its end, and the host-silence check
+        // in `poll` runs then: only a scan standing still needs the silence deadline.
         if let Some(t) = self.stepper.next_due_us() {
             return Some(t);
         }
+        let own = self.phase_deadline_us();
+        let silence = (self.state == ControllerState::Running).then(|| self.host_silent_at());
+        match (own, silence) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
+    fn host_silent_at(&self) -> u64 {
+        let silent = if self.host_silent_us == 0 {
+            HOST_SILENT_US
+        } else {
+            self.host_silent_us
+        };
+        self.last_host_us.saturating_add(silent)
+    }
+
+    /// How long a running scan goes on without a host frame, in this board's clock (a simulation
+    /// sped up against the host's wall clock scales `HOST_SILENT_US`).
+    pub fn set_host_silent_us(&mut self, us: u64) {
+        self.host_silent_us = us.max(1);
+    }
+
+    /// The scan phase's next deadline while no move runs.
+    fn phase_deadline_us(&self) -> Option<u64> {
         match self.phase {
             Phase::Settling { until_us, .. } => Some(until_us),
             Phase::Exposing {
@@ -237,7 +263,17 @@ impl Controller {
             .iter()
             .find(|&&a| !cfg.axis(a).continuous && closed & (1 << a.index()) != 0)
         {
-            self.enter_fault(Fault::LimitSwitch(axis));
+            self.enter_fault(hal, Fault::LimitSwitch(axis));
+        }
+    }
+
+    /// The board's loop came back at real time `real_us`: past the instant a ring of the move in
+    /// progress ran dry, steps that were due were not played: `Fault::StepsLate` (motion stops).
+    /// Host frames handled meanwhile do not count: only the step generator's deadline does.
+    pub fn check_steps_on_time<H: Hal>(&mut self, hal: &mut H, real_us: u64) {
+        if self.stepper.dry_us().is_some_and(|dry| real_us > dry) {
+            self.more_work = true;
+            self.enter_fault(hal, Fault::StepsLate);
         }
     }
 
@@ -248,6 +284,7 @@ impl Controller {
     #[inline(never)]
     pub fn handle<H: Hal>(&mut self, seq: u16, msg: HostMsg, hal: &mut H, out: &mut Outbox, bad_frames: u32) {
         self.last_now_us = self.last_now_us.max(hal.now_us());
+        self.last_host_us = self.last_now_us;
         // Any command may have created work (a start, a plan, an ack that frees the buffer).
         self.more_work = true;
         let command = match &msg {
@@ -282,7 +319,7 @@ impl Controller {
         }
         let result = match msg {
             HostMsg::Configure(cfg) => self.configure(cfg, out),
-            HostMsg::Plan(chunk) => self.take_plan(&chunk, out),
+            HostMsg::Plan(chunk) => self.take_plan(&chunk, hal, out),
             HostMsg::PlanEnd { total } => self.end_plan(total),
             HostMsg::Home => self.home(),
             HostMsg::Start => self.start(),
@@ -327,16 +364,12 @@ impl Controller {
         Ok(())
     }
 
-    fn grant_credit(&mut self, out: &mut Outbox) {
-        let free = self.plan.free();
-        out.reply(&DeviceMsg::Credit {
-            next_index: self.plan.next_index(),
-            free,
-        });
-        self.credit_reported = Some(free);
-    }
-
-    fn take_plan(&mut self, chunk: &gonio_shared::msg::PlanChunk, out: &mut Outbox) -> Result<(), RefuseReason> {
+    fn take_plan<H: Hal>(
+        &mut self,
+        chunk: &gonio_shared::msg::PlanChunk,
+        hal: &mut H,
+        out: &mut Outbox,
+    ) -> Result<(), RefuseReason> {
         let (Some(kin), Some(guard)) = (self.kin.first(), self.guard.as_ref()) else {
             return Err(RefuseReason::NotConfigured);
         };
@@ -347,7 +380,7 @@ impl Controller {
             Intake::Accepted => self.grant_credit(out),
             Intake::Rejected { index, reason } => {
                 let fault = Fault::Unreachable { index, reason };
-                self.enter_fault(fault);
+                self.enter_fault(hal, fault);
                 // Answered right away (the link reserved room), so not queued for `report`.
                 self.faults_unreported.pop_back();
                 out.reply(&DeviceMsg::Fault(fault));
@@ -454,16 +487,19 @@ impl Controller {
     }
 
     /// The link dropped `link::BAD_FRAME_FAULT_RUN` frames in a row: the host cannot be
-    /// heard (it could not even stop us), so nothing new starts; a move in progress finishes its
-    /// deceleration. Cleared by `Abort` or `Home` once frames get through again.
-    pub(crate) fn link_untrusted(&mut self) {
+    /// heard (it could not even stop us), so motion stops like on any fault. Cleared by `Abort` or
+    /// `Home` once frames get through again.
+    pub(crate) fn link_untrusted<H: Hal>(&mut self, hal: &mut H) {
         if self.state != ControllerState::Fault {
-            self.enter_fault(Fault::BadFrame);
+            self.enter_fault(hal, Fault::BadFrame);
             self.more_work = true;
         }
     }
 
-    fn enter_fault(&mut self, fault: Fault) {
+    /// Every fault stops motion at once: a seek or move in progress must not run on unsupervised
+    /// (on a segment board its queued steps are dropped).
+    fn enter_fault<H: Hal>(&mut self, hal: &mut H, fault: Fault) {
+        self.stepper.stop(hal);
         self.state = ControllerState::Fault;
         self.last_fault.clear();
         let _ = self.last_fault.push(fault);
@@ -473,7 +509,6 @@ impl Controller {
         self.phase = Phase::Idle;
         self.pause = PauseCause::NotPaused;
         if matches!(fault, Fault::LimitSwitch(_) | Fault::HomeNotFound(_)) {
-            self.stepper.halt();
             self.homed = false;
         }
     }
@@ -486,6 +521,12 @@ impl Controller {
             self.drive_motion(hal, now);
         }
         self.more_work = true;
+        if self.state == ControllerState::Running && now >= self.host_silent_at() {
+            // The host is gone (unplugged, crashed): hold after the direction in flight.
+            self.state = ControllerState::Paused;
+            self.pause = PauseCause::HostSilent;
+            self.status_unreported = true;
+        }
         for _ in 0..TRANSITIONS_PER_POLL {
             let progressed = match self.state {
                 ControllerState::Homing if !self.stepper.is_moving() => self.advance_homing(hal, now),
@@ -519,8 +560,7 @@ impl Controller {
             for axis in AXES {
                 // A continuous axis's index sensor closes once a turn: not a limit.
                 if !cfg.axis(axis).continuous && hal.limit_closed(axis) {
-                    self.stepper.stop(hal);
-                    self.enter_fault(Fault::LimitSwitch(axis));
+                    self.enter_fault(hal, Fault::LimitSwitch(axis));
                     return;
                 }
             }
@@ -531,11 +571,11 @@ impl Controller {
             self.guard
         };
         if let Err(e) = self.stepper.poll(hal, now, guard.as_ref()) {
-            self.motion_failed(e);
+            self.motion_failed(hal, e);
         }
     }
 
-    fn motion_failed(&mut self, e: StepError) {
+    fn motion_failed<H: Hal>(&mut self, hal: &mut H, e: StepError) {
         let index = match self.phase {
             Phase::Moving { index } | Phase::Settling { index, .. } | Phase::Exposing { index, .. } => index,
             Phase::Idle => self.plan.next_index(),
@@ -544,8 +584,7 @@ impl Controller {
             StepError::Blocked => Unreachable::Blocked,
             StepError::BadProfile => Unreachable::NotFinite,
         };
-        self.stepper.halt();
-        self.enter_fault(Fault::Unreachable { index, reason });
+        self.enter_fault(hal, Fault::Unreachable { index, reason });
     }
 
     fn start_move<H: Hal>(&mut self, hal: &mut H, now: u64, target: Steps, speed_scale: f32) -> bool {
@@ -559,7 +598,7 @@ impl Controller {
         {
             Ok(()) => true,
             Err(e) => {
-                self.motion_failed(e);
+                self.motion_failed(hal, e);
                 false
             }
         }
@@ -604,7 +643,7 @@ impl Controller {
             Stage::Begin | Stage::BackOff => {
                 let closed = hal.limit_closed(axis);
                 if closed && self.homing.stage == Stage::BackOff {
-                    self.enter_fault(Fault::HomeNotFound(axis));
+                    self.enter_fault(hal, Fault::HomeNotFound(axis));
                     return false;
                 }
                 let (distance, stage) = if closed {
@@ -622,7 +661,7 @@ impl Controller {
             }
             Stage::Seek => {
                 // The whole travel went by without the switch closing.
-                self.enter_fault(Fault::HomeNotFound(axis));
+                self.enter_fault(hal, Fault::HomeNotFound(axis));
                 false
             }
             Stage::Park => {
@@ -708,58 +747,19 @@ impl Controller {
                         timestamp_us: now,
                     };
                     if self.measurements.push(m).is_err() {
-                        self.enter_fault(Fault::BufferOverflow);
+                        self.enter_fault(hal, Fault::BufferOverflow);
                         return false;
                     }
                     self.plan_done = self.plan_done.saturating_add(1);
                     self.phase = Phase::Idle;
                     true
                 } else if now >= deadline_us {
-                    self.enter_fault(Fault::DetectorTimeout);
+                    self.enter_fault(hal, Fault::DetectorTimeout);
                     false
                 } else {
                     false
                 }
             }
-        }
-    }
-
-    /// Send what the host has not been told yet, in order of urgency, as far as the outbox allows.
-    fn report(&mut self, out: &mut Outbox, bad_frames: u32) {
-        while let Some(&f) = self.faults_unreported.front() {
-            if !out.notify(&DeviceMsg::Fault(f)) {
-                return;
-            }
-            self.faults_unreported.pop_front();
-        }
-        if self.status_unreported {
-            if !out.notify(&DeviceMsg::Status(self.status(bad_frames))) {
-                return;
-            }
-            self.status_unreported = false;
-        }
-        if self.streaming() {
-            let free = self.plan.free();
-            // Grant again once a chunk's worth of room opened up (or when forced).
-            let due = self
-                .credit_reported
-                .is_none_or(|c| usize::from(free) >= usize::from(c) + CHUNK_DIRECTIONS);
-            if due {
-                let credit = DeviceMsg::Credit {
-                    next_index: self.plan.next_index(),
-                    free,
-                };
-                if !out.notify(&credit) {
-                    return;
-                }
-                self.credit_reported = Some(free);
-            }
-        }
-        while let Some(m) = self.measurements.to_send() {
-            if !out.notify(&DeviceMsg::Measurement(m.clone())) {
-                return;
-            }
-            self.measurements.mark_sent();
         }
     }
 }

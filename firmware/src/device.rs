@@ -39,7 +39,7 @@ impl Device {
                     let bad_frames = self.link.bad_frames();
                     self.controller.handle(seq, msg, hal, &mut self.outbox, bad_frames);
                 }
-                Some(Incoming::Untrusted) => self.controller.link_untrusted(),
+                Some(Incoming::Untrusted) => self.controller.link_untrusted(hal),
             }
         }
         bytes.len()
@@ -83,6 +83,17 @@ impl Device {
     /// by polling (homing: that is the home position; otherwise `Fault::LimitSwitch`).
     pub fn limit_tripped<H: Hal>(&mut self, hal: &mut H, closed: u8) {
         self.controller.limit_tripped(hal, closed);
+    }
+
+    /// The board's loop runs at real time `real_us`: a move whose queued steps ran dry before it
+    /// came back is a `Fault::StepsLate`.
+    pub fn check_steps_on_time<H: Hal>(&mut self, hal: &mut H, real_us: u64) {
+        self.controller.check_steps_on_time(hal, real_us);
+    }
+
+    /// See [`Controller::set_host_silent_us`].
+    pub fn set_host_silent_us(&mut self, us: u64) {
+        self.controller.set_host_silent_us(us);
     }
 
     pub fn controller(&self) -> &Controller {

@@ -11,12 +11,23 @@
 use crate::capacity::SEGMENT_RING;
 use crate::segment::{Playback, Segment};
 use gonio_shared::instrument::AXIS_COUNT;
+pub use gonio_shared::instrument::MAX_AXIS_STEP_RATE;
 use gonio_shared::Axis;
 use heapless::Deque;
 
 /// STEP high time, ticks (3 us at 1 MHz: DRV8825 needs 1.9 us, A4988 1 us, TMC22xx 0.1 us). The
-/// low time before the axis's next step is its interval minus this: at the 20 kHz cap, 47 us.
+/// low time before the axis's next step is its interval minus this: at the 50 kHz cap, 17 us.
 pub const PULSE_TICKS: u32 = 3;
+
+/// Instructions the step path may spend per step (the gate of `.ci/step-cost`).
+pub const STEP_COST_BUDGET: u64 = 120;
+/// Instructions per second of the board (96 MHz, about one instruction a cycle).
+pub const CPU_INSTRUCTIONS_PER_S: u64 = 96_000_000;
+// Every axis at the cap at once must leave three quarters of the CPU to the loop and the link.
+const _: () = assert!(
+    AXIS_COUNT as u64 * MAX_AXIS_STEP_RATE as u64 * STEP_COST_BUDGET <= CPU_INSTRUCTIONS_PER_S / 4,
+    "the step rate cap exceeds the step path's capacity"
+);
 
 /// `t` has come (wrap-safe: `t` at most 2^31 ticks in the past).
 pub fn reached(t: u32, now: u32) -> bool {

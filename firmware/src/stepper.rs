@@ -39,6 +39,9 @@ struct ActiveMove {
     target: Steps,
     /// Segment boards: when the loop must come back to refill a ring.
     refill_us: u64,
+    /// Segment boards: when the first ring of an axis with steps still to make runs out of queued
+    /// steps (`u64::MAX` once every segment is queued). A loop that comes back later was late.
+    dry_us: u64,
     /// `Stepper::next_due_us`, kept up to date (the loop asks for it on every turn).
     next_us: u64,
 }
@@ -99,14 +102,7 @@ impl Stepper {
         !self.active.is_empty()
     }
 
-    /// Forget the move in progress without asking the board what it made (the position is no
-    /// longer trusted: limit switch and homing faults, which need re-homing). Prefer
-    /// [`Stepper::stop`].
-    pub fn halt(&mut self) {
-        self.active.clear();
-    }
-
-    /// Stop every axis at once (limit switch, homing switch found, abort of homing); on a segment
+    /// Stop every axis at once (any fault, homing switch found, abort of homing); on a segment
     /// board the queued steps are dropped and the position is what was really made.
     pub fn stop<H: Steppers>(&mut self, hal: &mut H) {
         let Some(m) = self.active.first() else { return };
@@ -119,6 +115,12 @@ impl Stepper {
             }
         }
         self.active.clear();
+    }
+
+    /// Segment boards: the instant a ring of an axis with steps still to make runs dry, if a move
+    /// runs and is not fully queued: the step generator's own deadline.
+    pub fn dry_us(&self) -> Option<u64> {
+        self.active.first().map(|m| m.dry_us).filter(|&t| t != u64::MAX)
     }
 
     /// The next instant the stepper has work, if a move runs: a step (per-step path), or a ring
@@ -204,6 +206,7 @@ impl Stepper {
             end_us: now_us.saturating_add(end.div_ceil(ONE_TICK)),
             target,
             refill_us: now_us,
+            dry_us: u64::MAX,
             next_us: now_us,
         };
         if H::SEGMENTS {
@@ -297,6 +300,7 @@ fn load_next(m: &mut ActiveMove, i: usize) {
 /// Segment boards: queue segments while the rings have room; note when to come back.
 fn fill<H: Steppers>(m: &mut ActiveMove, hal: &mut H, now_us: u64) {
     let mut refill = u64::MAX;
+    let mut dry = u64::MAX;
     let rooms = hal.segment_room();
     for (axis, mut room) in AXES.into_iter().zip(rooms) {
         let Some(g) = m.gens.get_mut(axis.index()) else {
@@ -312,9 +316,11 @@ fn fill<H: Steppers>(m: &mut ActiveMove, hal: &mut H, now_us: u64) {
             let at = m
                 .start_us
                 .saturating_add(u64::from(until.wrapping_sub(tick(m.start_us))));
+            dry = dry.min(at);
             // A full ring that ends this soon: come back a little later, not at once.
             refill = refill.min(at.max(now_us.saturating_add(REFILL_RETRY_US)));
         }
     }
     m.refill_us = refill;
+    m.dry_us = dry;
 }

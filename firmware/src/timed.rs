@@ -83,7 +83,7 @@ impl<B: Clock + Switches + Detector, Q: SharedQueue> QueuedHal<B, Q> {
                 });
             }
             self.now_us = self.now_us.max(t);
-            self.poll_device(device);
+            self.poll_device(device, real);
         }
         Some(self.board.now_us())
     }
@@ -91,7 +91,10 @@ impl<B: Clock + Switches + Detector, Q: SharedQueue> QueuedHal<B, Q> {
     /// The controller's poll, out of line: most turns of the loop during a move only read the
     /// switches and find nothing due, and should not pay for the poll's stack frame.
     #[inline(never)]
-    fn poll_device(&mut self, device: &mut Device) {
+    fn poll_device(&mut self, device: &mut Device, real: u64) {
+        // Before the poll refills the rings: a loop that came back (real time `real`) after one
+        // ran dry was late. Here, not on every turn: only a poll refills, so none can hide it.
+        device.check_steps_on_time(self, real);
         device.poll(self);
         self.arm(device.stop_mask());
     }

@@ -351,7 +351,7 @@ fn a_run_of_bad_frames_faults_and_a_good_frame_resets_the_run() {
     }
     assert!(r.contains(&DeviceMsg::Fault(Fault::BadFrame)), "{r:?}");
     assert_eq!(b.dev.controller().state(), ControllerState::Fault);
-    assert!(b.dev.controller().is_moving(), "the move winds down, not cut short");
+    assert!(!b.dev.controller().is_moving(), "every fault stops motion at once");
     b.run_idle(600_000_000);
     assert!(!b.dev.controller().is_moving());
     assert_eq!(b.hal.exposure_count(), 0, "no measurement after the fault");

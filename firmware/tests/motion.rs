@@ -201,7 +201,8 @@ fn scan(cfg: InstrumentConfig<f32>, dirs: &[Direction]) -> Bench {
         total: dirs.len() as u32,
     });
     b.send(HostMsg::Start);
-    // Acknowledge whenever the device waits (a full measurement buffer pauses it).
+    // Acknowledge whenever the device waits (a full measurement buffer pauses it, and so does a
+    // host silent for `HOST_SILENT_US`: resume it, as the host does when it hears it paused).
     loop {
         b.run_idle(3_600_000_000);
         let made = b.log.iter().filter(|m| matches!(m, DeviceMsg::Measurement(_))).count() as u32;
@@ -209,6 +210,7 @@ fn scan(cfg: InstrumentConfig<f32>, dirs: &[Direction]) -> Bench {
             break;
         }
         b.send(HostMsg::AckMeasurements { through: made - 1 });
+        b.send(HostMsg::Resume);
     }
     b
 }

@@ -134,6 +134,10 @@ fn ten_thousand_directions_stream_through_small_buffers_exactly_once_in_order() 
         if !b.tick() && unacked == 0 && processed == b.log.len() {
             // Nothing to do on either side: the host must be holding something; ack now.
             ack_hold = 0;
+            if b.dev.controller().state() == ControllerState::Paused {
+                // Held after `HOST_SILENT_US` without a frame from us: we are back.
+                b.send(HostMsg::Resume);
+            }
         }
     }
     if let Some(a) = acked_through {
@@ -167,4 +171,70 @@ fn ten_thousand_directions_stream_through_small_buffers_exactly_once_in_order() 
         b.hal.step_count,
         b.hal.now as f64 / 1e6
     );
+}
+
+#[test]
+fn a_scan_holds_when_the_host_falls_silent_and_resumes_when_it_returns() {
+    use gonio_firmware::controller::HOST_SILENT_US;
+    let mut b = Bench::new(coarse_config());
+    b.hal.record_steps = false;
+    b.handshake_and_configure();
+    b.home();
+    // Big arm moves (about a second each), so the buffer never fills before the host falls silent.
+    let n = 40u32;
+    let dirs: Vec<Direction> = (0..n)
+        .map(|i| dir_deg(if i % 2 == 0 { 20.0 } else { 60.0 }, 0.0, 30.0, 180.0))
+        .collect();
+    b.send_plan(0, &dirs);
+    b.send(HostMsg::PlanEnd { total: n });
+    b.send(HostMsg::Start);
+    let last_frame_us = b.hal.now;
+    // The host falls silent: the scan runs on, then holds.
+    while b.dev.controller().state() == ControllerState::Running && b.tick() {}
+    assert_eq!(b.dev.controller().state(), ControllerState::Paused);
+    // The direction in flight finishes.
+    b.run_idle(600_000_000);
+    assert!(!b.dev.controller().is_moving(), "held mid-move");
+    assert!(b.hal.now >= last_frame_us + HOST_SILENT_US);
+    let held = b.log.iter().filter(|m| matches!(m, DeviceMsg::Measurement(_))).count();
+    assert!(held > 0 && (held as u32) < n, "{held} readings before the hold");
+    let exposures = b.hal.exposure_count();
+    assert_eq!(exposures, held, "the direction in flight was finished and measured");
+    // Held: nothing moves or measures however long the host stays away.
+    let (steps, t_hold) = (b.hal.step_count, b.hal.now);
+    b.hal.now += 600_000_000;
+    b.run_idle(600_000_000);
+    assert_eq!((b.hal.step_count, b.hal.exposure_count()), (steps, exposures));
+    assert!(b.hal.now > t_hold);
+    let s = b.status();
+    assert_eq!(s.state, ControllerState::Paused);
+    assert_eq!(usize::from(s.unacked), held, "the readings are kept");
+    // The host returns and resumes: the scan finishes with every direction measured once.
+    assert!(b
+        .send(HostMsg::Resume)
+        .iter()
+        .all(|m| !matches!(m, DeviceMsg::Refused { .. })));
+    let mut last_ack = b.hal.now;
+    while b.dev.controller().state() != ControllerState::Done {
+        assert!(b.tick(), "stalled in {:?}", b.dev.controller().state());
+        // A present host: something at least every second of instrument time.
+        if b.hal.now > last_ack + 1_000_000 {
+            b.send(HostMsg::GetStatus);
+            last_ack = b.hal.now;
+        }
+        let taken = b.log.iter().filter(|m| matches!(m, DeviceMsg::Measurement(_))).count() as u32;
+        if b.dev.controller().state() == ControllerState::Paused && taken > 0 {
+            b.send(HostMsg::AckMeasurements { through: taken - 1 });
+        }
+    }
+    let mut seqs: Vec<u32> = b
+        .log
+        .iter()
+        .filter_map(|m| match m {
+            DeviceMsg::Measurement(m) => Some(m.index),
+            _ => None,
+        })
+        .collect();
+    seqs.dedup();
+    assert_eq!(seqs, (0..n).collect::<Vec<_>>());
 }

@@ -25,6 +25,9 @@ pub enum Axis {
 pub const AXES: [Axis; 4] = [Axis::Light, Axis::Detector, Axis::Tilt, Axis::Azimuth];
 /// Number of axes (the length of every per-axis array).
 pub const AXIS_COUNT: usize = 4;
+/// The fastest step rate an axis may be configured for, steps/s: what the firmware's step path
+/// plays on every axis at once without starving the link (`docs/firmware.md`, "Step rate cap").
+pub const MAX_AXIS_STEP_RATE: u32 = 50_000;
 
 impl Axis {
     pub const fn index(self) -> usize {
@@ -104,6 +107,8 @@ pub enum ConfigError {
     BlockingAngle,
     #[error("the arms' home positions must keep the light counter-clockwise of the detector by [blocking, 360 - blocking] degrees")]
     ArmHomes,
+    #[error("axis {0:?}: max_speed is more than 50,000 steps/s (the step path's cap)")]
+    TooFast(Axis),
 }
 
 impl<R: Real> AxisConfig<R> {
@@ -123,6 +128,10 @@ impl<R: Real> AxisConfig<R> {
         let dyn_ok = |v: R| v > R::ZERO && v.is_finite();
         if !dyn_ok(self.max_speed) || !dyn_ok(self.max_accel) {
             return Err(ConfigError::BadDynamics(axis));
+        }
+        let rate = self.max_speed * self.steps_per_radian();
+        if !(rate <= R::from_f64(f64::from(MAX_AXIS_STEP_RATE))) {
+            return Err(ConfigError::TooFast(axis));
         }
         if !self.continuous {
             if !(self.min.is_finite() && self.max.is_finite() && self.min < self.max) {
@@ -268,6 +277,16 @@ mod tests {
     }
 
     #[test]
+    fn the_step_rate_cap_allows_exactly_its_rate() {
+        let mut c = InstrumentConfig::<f64>::reference();
+        let spr = c.axes[0].steps_per_radian();
+        c.axes[0].max_speed = f64::from(MAX_AXIS_STEP_RATE) / spr;
+        assert_eq!(c.validate(), Ok(()));
+        c.axes[0].max_speed *= 1.0 + 1e-9;
+        assert_eq!(c.validate(), Err(ConfigError::TooFast(Axis::Light)));
+    }
+
+    #[test]
     fn invalid_configs_are_refused_with_their_reason() {
         let good = InstrumentConfig::<f32>::reference();
         let mut c = good;
@@ -293,7 +312,14 @@ mod tests {
         c.axes[0].home = HomeSide::Min; // light parked at -175, detector at -175: blocked
         assert_eq!(c.validate(), Err(ConfigError::ArmHomes));
         let mut c = good;
-        c.axes[0].gear_ratio = 1e9;
+        c.axes[0].gear_ratio = 1e6;
+        c.axes[0].max_speed = 1e-5;
         assert_eq!(c.validate(), Err(ConfigError::TooManySteps(Axis::Light)));
+        let mut c = good;
+        c.axes[3].max_speed = 1e3; // 2.3e7 steps/s (the fuzz run's config)
+        assert_eq!(c.validate(), Err(ConfigError::TooFast(Axis::Azimuth)));
+        let mut c = good;
+        c.axes[2].max_speed = f32::MAX;
+        assert_eq!(c.validate(), Err(ConfigError::TooFast(Axis::Tilt)));
     }
 }

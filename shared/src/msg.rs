@@ -212,6 +212,9 @@ pub enum Fault {
     /// Homing travelled the axis's whole range without its switch closing (or could not back off a
     /// switch that was closed at the start); cleared by homing again once the switch is fixed.
     HomeNotFound(Axis),
+    /// The step generator fell behind its own schedule during a move (a step would have come
+    /// late): motion stops, positions stay counted.
+    StepsLate,
 }
 
 /// One reading at one plan direction.

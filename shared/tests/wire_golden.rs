@@ -14,7 +14,7 @@ use gonio_shared::msg::{
 };
 use gonio_shared::Axis;
 
-const GOLDEN_SCHEMA_HASH: u32 = 0x1991_4449;
+const GOLDEN_SCHEMA_HASH: u32 = 0x2871_6e46;
 
 /// `Configure(config())`: four axes, then blocking angle, settle, exposure, isotropic.
 const CONFIGURE: &str = concat!(

@@ -248,10 +248,17 @@ fn counter_overhead() -> u32 {
 
 type Hal = QueuedHal<SimBoard, CsQueue>;
 
-fn run(dev: &mut Device, hal: &mut Hal, costs: &mut Costs, overhead: u32) {
+fn run(dev: &mut Device, hal: &mut Hal, costs: &mut Costs, overhead: u32, seq: &mut u16) {
     let mut run_at = Some(hal.board.real);
+    let mut host_at = hal.board.real;
     loop {
         let now = hal.board.real;
+        // A present host: a frame every 5 s, or the device holds the scan (`HOST_SILENT_US`).
+        if now >= host_at + 5_000_000 {
+            host_at = now;
+            send(dev, hal, seq, HostMsg::GetStatus);
+            run_at = Some(now);
+        }
         let isr_at = step_queue().next_wake(tick(now)).map(|w| {
             // A compare "behind" the counter is one already due.
             let ahead = w.wrapping_sub(tick(now));
@@ -377,7 +384,7 @@ fn main() -> ! {
     send(&mut dev, &mut hal, &mut seq, HostMsg::Hello(Hello::OURS));
     send(&mut dev, &mut hal, &mut seq, HostMsg::Configure(cfg));
     send(&mut dev, &mut hal, &mut seq, HostMsg::Home);
-    run(&mut dev, &mut hal, &mut costs, overhead);
+    run(&mut dev, &mut hal, &mut costs, overhead, &mut seq);
     let mut directions = heapless::Vec::new();
     for k in 0..8 {
         let dir = if k % 2 == 0 {
@@ -394,7 +401,7 @@ fn main() -> ! {
     send(&mut dev, &mut hal, &mut seq, HostMsg::Plan(chunk));
     send(&mut dev, &mut hal, &mut seq, HostMsg::PlanEnd { total: 8 });
     send(&mut dev, &mut hal, &mut seq, HostMsg::Start);
-    run(&mut dev, &mut hal, &mut costs, overhead);
+    run(&mut dev, &mut hal, &mut costs, overhead, &mut seq);
 
     let stats = hal.queue.with(|q| q.stats());
     let steps = u64::from(stats.steps).max(1);

@@ -160,8 +160,10 @@ pub fn start_step_timer(tim2: embassy_stm32::Peri<'static, embassy_stm32::periph
     timer.start();
     core::mem::forget(timer); // keep TIM2 clocked and running for good
     interrupt::TIM2.set_priority(Priority::P0);
-    // USB's handler (embassy's default priority is also P0) must not hold up a step edge.
+    // USB's handler (embassy's default priority is also P0) must not hold up a step edge, nor
+    // embassy-time's driver (TIM9 with `time-driver-any` on the F411, which shares its vector).
     interrupt::OTG_FS.set_priority(Priority::P1);
+    interrupt::TIM1_BRK_TIM9.set_priority(Priority::P1);
     for irq in [interrupt::EXTI1, interrupt::EXTI2, interrupt::EXTI3, interrupt::EXTI9_5] {
         irq.set_priority(Priority::P0);
     }
@@ -173,6 +175,14 @@ pub fn start_step_timer(tim2: embassy_stm32::Peri<'static, embassy_stm32::periph
             irq.enable();
         }
     }
+}
+
+/// STEP pins low and every driver disabled (ENABLE is active low: PB8, PB9, PB4 on GPIOB, PA15
+/// on GPIOA), one BSRR write per port: what a panic or a HardFault does before the reset.
+pub fn drivers_off() {
+    const GPIOB_OFF: u32 = (1 << 4 | 1 << 8 | 1 << 9) | (1 << 0 | 1 << 1 | 1 << 6 | 1 << 7) << 16;
+    pac::GPIOB.bsrr().write_value(pac::gpio::regs::Bsrr(GPIOB_OFF));
+    pac::GPIOA.bsrr().write_value(pac::gpio::regs::Bsrr(1 << 15));
 }
 
 /// One compare channel per axis (CC1..CC4 = light, detector, tilt, azimuth): each event is a

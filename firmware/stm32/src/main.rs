@@ -30,6 +30,7 @@ use embassy_stm32::exti::{ExtiInput, TriggerEdge};
 use embassy_stm32::gpio::{Level, Output, Pull, Speed};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::usb::{self, Driver};
+use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, peripherals, Config};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
@@ -42,16 +43,25 @@ use gonio_firmware::Device;
 use gonio_shared::msg::{ControllerState, Fault};
 use static_cell::{ConstStaticCell, StaticCell};
 
-/// Log where, then stop in a `udf` the probe reports as a HardFault. The panic *message* is not
+/// Drivers off (STEP low, ENABLE released), log where, reset. The panic *message* is not
 /// printed: formatting it would link `core::fmt` (docs/firmware.md, "Flash and RAM"); no panic can
 /// come from wire data (the logic crate's rule), only from start-up `expect`s.
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
+    board::drivers_off();
     match info.location() {
         Some(l) => defmt::error!("panic at {=str}:{=u32}", l.file(), l.line()),
         None => defmt::error!("panic"),
     }
-    cortex_m::asm::udf()
+    cortex_m::peripheral::SCB::sys_reset()
+}
+
+/// A bus or usage fault: drivers off at once, then reset (nothing is logged: the stack may be
+/// what failed).
+#[cortex_m_rt::exception]
+unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
+    board::drivers_off();
+    cortex_m::peripheral::SCB::sys_reset()
 }
 
 bind_interrupts!(struct Irqs {
@@ -68,6 +78,10 @@ const TX_PIPE_BYTES: usize = 256;
 /// pid.codes test VID/PID: fine on the bench, to be replaced by an allocated PID before shipping.
 const USB_VID: u16 = 0x1209;
 const USB_PID: u16 = 0x0001;
+
+/// The independent watchdog's timeout, and how often the healthy controller loop feeds it.
+const WATCHDOG_US: u32 = 500_000;
+const WATCHDOG_FEED_US: u64 = 100_000;
 
 /// Outgoing bytes, controller -> USB writer.
 static TX_PIPE: Pipe<CriticalSectionRawMutex, TX_PIPE_BYTES> = Pipe::new();
@@ -195,7 +209,18 @@ async fn main(spawner: Spawner) {
 
     spawner.spawn(spawned(usb_task(usb), "usb_task"));
     spawner.spawn(spawned(usb_tx_task(sender), "usb_tx_task"));
-    spawner.spawn(spawned(controller_task(device, hal, receiver), "controller_task"));
+    // The independent watchdog: a hung executor, or a controller loop that stops feeding it
+    // (`Watchdog::feed`), resets the board within WATCHDOG_US.
+    let mut wdg = IndependentWatchdog::new(p.IWDG, WATCHDOG_US);
+    wdg.unleash();
+    let watchdog = Watchdog {
+        wdg,
+        fed: Instant::now(),
+    };
+    spawner.spawn(spawned(
+        controller_task(device, hal, receiver, watchdog),
+        "controller_task",
+    ));
     spawner.spawn(spawned(blink(led), "blink"));
 }
 
@@ -304,6 +329,7 @@ async fn controller_task(
     device: &'static mut Device,
     mut hal: QueuedHal<BoardIo, CsQueue>,
     mut receiver: Receiver<'static, UsbDriver>,
+    mut watchdog: Watchdog,
 ) -> ! {
     let mut rx = [0u8; USB_PACKET];
     let (mut rx_start, mut rx_end) = (0usize, 0usize);
@@ -325,6 +351,7 @@ async fn controller_task(
         let wake = hal.run(device);
         seen.log_changes(device, &hal);
         staged.pump(device);
+        let wake = Some(watchdog.feed(&hal).min(wake.unwrap_or(u64::MAX)));
 
         let rx_idle = rx_start >= rx_end;
         if !rx_idle && staged.pending().is_empty() {
@@ -372,6 +399,27 @@ async fn controller_task(
             Either3::Second(()) => yield_now().await,
             Either3::Third(n) => staged.consume(n),
         }
+    }
+}
+
+/// The IWDG, fed by the controller loop at most every `WATCHDOG_FEED_US`, and only while the
+/// step queue is healthy (no overrun: the loop keeps room for what it queues).
+struct Watchdog {
+    wdg: IndependentWatchdog<'static, peripherals::IWDG>,
+    fed: Instant,
+}
+
+impl Watchdog {
+    /// Feed it if due and healthy; returns when the loop must come back to feed it again.
+    fn feed(&mut self, hal: &QueuedHal<BoardIo, CsQueue>) -> u64 {
+        let now = Instant::now();
+        if now.as_micros() >= self.fed.as_micros().saturating_add(WATCHDOG_FEED_US)
+            && hal.queue.with(|q| q.stats().overruns) == 0
+        {
+            self.wdg.pet();
+            self.fed = now;
+        }
+        self.fed.as_micros().saturating_add(WATCHDOG_FEED_US)
     }
 }
 
@@ -440,5 +488,6 @@ fn fault_name(f: Fault) -> &'static str {
         Fault::BadFrame => "too many bad frames",
         Fault::DetectorTimeout => "detector timeout",
         Fault::HomeNotFound(_) => "home not found",
+        Fault::StepsLate => "steps late",
     }
 }

@@ -198,6 +198,9 @@ impl Drop for Fds {
 
 fn run(fds: Fds, model: Arc<SimModel>, speedup: f64, control: &AtomicU8, counters: &SimCounters) -> SimReport {
     let mut sim = Instrument::new(model);
+    // The firmware's host-silence hold counts instrument time, which runs `speedup` times faster.
+    let silent = gonio_firmware::controller::HOST_SILENT_US as f64 * speedup.max(1.0);
+    sim.dev.set_host_silent_us(silent.min(u64::MAX as f64) as u64);
     let mut io = PtyIo::default();
     let mut last_wall = Instant::now();
     let mut stopping_since: Option<Instant> = None;
