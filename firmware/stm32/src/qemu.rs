@@ -92,8 +92,10 @@ impl HostRx for UartRx {
             return RxEvent::Connected;
         }
         let n = RX_PIPE.read(buf).await;
-        // Room again: let the interrupt take the byte it may have left in DR.
+        // Room again: let the interrupt take the byte it may have left in DR. Pended by hand: QEMU's
+        // USART raises its interrupt only when a byte arrives, not when RXNEIE is set again.
         cortex_m::interrupt::free(|_| wr(USART_CR1, rd(USART_CR1) | CR1_RXNEIE));
+        interrupt::USART1.pend();
         RxEvent::Data(n)
     }
 }

@@ -1,9 +1,9 @@
 //! The QEMU build's board: what QEMU's netduinoplus2 (STM32F405) emulates stands in for the Black
 //! Pill's timers, pins and sensors; every decision is still the logic crate's.
 //!
-//! - **Time**: an embassy-time driver on SysTick (QEMU has no RCC model, so `embassy_stm32::init`
-//!   cannot run, and its timers raise no compare interrupts). SysTick interrupts every `TICK_US`;
-//!   `now` adds the counter's progress within the period, so it has microsecond resolution.
+//! - **Time**: an embassy-time driver (QEMU has no RCC model, so `embassy_stm32::init` cannot run,
+//!   and its timers raise no compare interrupts): `now` is TIM2's free-running microsecond
+//!   counter, and SysTick interrupts every `TICK_US` to fire the alarms.
 //! - **Steps**: the same SysTick interrupt plays the `StepQueue` with `StepQueue::service`, every
 //!   edge due by then (the board's TIM2 compare channels play each at its own microsecond; here
 //!   an edge is up to `TICK_US` late, which the queue counts in `stats().late`).
@@ -27,21 +27,26 @@ use gonio_shared::Axis;
 /// The core clock of QEMU's netduinoplus2 model (its SYSCLK; nothing to set up, the RCC is not
 /// emulated). SysTick counts it.
 pub const SYSCLK_HZ: u32 = 168_000_000;
-const CYCLES_PER_US: u32 = SYSCLK_HZ / 1_000_000;
-/// SysTick period: the resolution of the time driver's alarms and of the step playback.
+/// SysTick period: how often the time driver checks its alarms and the step queue is played.
 pub const TICK_US: u32 = 20;
-const SYST_RELOAD: u32 = TICK_US * CYCLES_PER_US - 1;
+const SYST_RELOAD: u32 = TICK_US * (SYSCLK_HZ / 1_000_000) - 1;
+/// QEMU's STM32 timers count a 1 GHz clock (virtual nanoseconds): /1000 = microseconds.
+const TIM2_PSC: u32 = 999;
 
 const SYST_CSR: usize = 0xE000_E010;
 const SYST_RVR: usize = 0xE000_E014;
 const SYST_CVR: usize = 0xE000_E018;
-const SCB_ICSR: usize = 0xE000_ED04;
-const ICSR_PENDSTSET: u32 = 1 << 26;
 /// SysTick control: counter on, interrupt on, core clock.
 const SYST_ENABLE_TICKINT_CORECLK: u32 = 0b111;
+const TIM2: usize = 0x4000_0000;
+const TIM2_CR1: usize = TIM2;
+const TIM2_EGR: usize = TIM2 + 0x14;
+const TIM2_CNT: usize = TIM2 + 0x24;
+const TIM2_PSC_REG: usize = TIM2 + 0x28;
+const TIM2_ARR: usize = TIM2 + 0x2C;
 
 fn rd(addr: usize) -> u32 {
-    // SAFETY: a memory-mapped core register of the Cortex-M4.
+    // SAFETY: a memory-mapped register of the emulated Cortex-M4 / STM32F405, 32-bit access.
     unsafe { core::ptr::read_volatile(addr as *const u32) }
 }
 
@@ -50,39 +55,40 @@ fn wr(addr: usize, v: u32) {
     unsafe { core::ptr::write_volatile(addr as *mut u32, v) }
 }
 
-/// The embassy-time driver: SysTick periods counted in the interrupt, plus the counter's progress.
+/// The embassy-time driver: TIM2's free-running 32-bit microsecond counter, widened to 64 bits
+/// (QEMU derives the counter from its virtual clock, so no time is lost when the host is too busy
+/// to deliver every SysTick; counting SysTick periods lost up to two thirds of them).
 struct SysTickDriver {
-    periods: Mutex<CriticalSectionRawMutex, Cell<u64>>,
+    /// The counter when last read, and the wraps seen.
+    counter: Mutex<CriticalSectionRawMutex, Cell<(u32, u32)>>,
     /// The next alarm (embassy-time ticks = microseconds); `u64::MAX` = none.
     alarm: Mutex<CriticalSectionRawMutex, Cell<u64>>,
     queue: Mutex<CriticalSectionRawMutex, RefCell<Queue>>,
 }
 
 embassy_time_driver::time_driver_impl!(static DRIVER: SysTickDriver = SysTickDriver {
-    periods: Mutex::new(Cell::new(0)),
+    counter: Mutex::new(Cell::new((0, 0))),
     alarm: Mutex::new(Cell::new(u64::MAX)),
     queue: Mutex::new(RefCell::new(Queue::new())),
 });
 
 impl SysTickDriver {
-    /// Microseconds since boot. With interrupts masked, a wrap the interrupt has not counted yet
-    /// shows as SysTick pending: count it here (and re-read the counter, which then has wrapped).
+    /// Microseconds since boot. Read at least every SysTick, far more often than the counter
+    /// wraps (71 minutes).
     fn now_us(&self) -> u64 {
-        self.periods.lock(|periods| {
-            let mut p = periods.get();
-            let mut cvr = rd(SYST_CVR);
-            if rd(SCB_ICSR) & ICSR_PENDSTSET != 0 {
-                p += 1;
-                cvr = rd(SYST_CVR);
+        self.counter.lock(|c| {
+            let (last, mut wraps) = c.get();
+            let now = rd(TIM2_CNT);
+            if now < last {
+                wraps = wraps.wrapping_add(1);
             }
-            let within = SYST_RELOAD.saturating_sub(cvr) / CYCLES_PER_US;
-            p * u64::from(TICK_US) + u64::from(within.min(TICK_US - 1))
+            c.set((now, wraps));
+            (u64::from(wraps) << 32) | u64::from(now)
         })
     }
 
-    /// One SysTick period passed: count it, and wake the timers that are due.
+    /// A SysTick: wake the timers that are due.
     fn on_tick(&self) -> u64 {
-        self.periods.lock(|p| p.set(p.get() + 1));
         let now = self.now_us();
         if now >= self.alarm.lock(Cell::get) {
             let next = self.queue.lock(|q| q.borrow_mut().next_expiration(now));
@@ -109,8 +115,14 @@ impl embassy_time_driver::Driver for SysTickDriver {
     }
 }
 
-/// Start SysTick (time and step playback) at the highest priority, as the board's TIM2.
+/// Start TIM2 (the microsecond counter) and SysTick (alarms and step playback, at the highest
+/// priority, as the board's TIM2).
 pub fn start_time() {
+    wr(TIM2_PSC_REG, TIM2_PSC);
+    wr(TIM2_ARR, u32::MAX);
+    wr(TIM2_EGR, 1); // UG: load the prescaler
+    wr(TIM2_CNT, 0);
+    wr(TIM2_CR1, 1); // CEN
     wr(SYST_RVR, SYST_RELOAD);
     wr(SYST_CVR, 0);
     wr(SYST_CSR, SYST_ENABLE_TICKINT_CORECLK);
