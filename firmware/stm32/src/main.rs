@@ -30,6 +30,7 @@ mod qemu_board;
 mod usb;
 
 use defmt_rtt as _;
+#[cfg(feature = "board")]
 use embassy_executor::Spawner;
 use embassy_stm32::pac;
 
@@ -63,12 +64,10 @@ pub fn drivers_off() {
     pac::GPIOA.bsrr().write_value(pac::gpio::regs::Bsrr(1 << 15));
 }
 
+#[cfg(feature = "board")]
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
-    #[cfg(feature = "board")]
     usb::start(spawner);
-    #[cfg(feature = "qemu")]
-    qemu::start(spawner);
 }
 
 /// A task's spawn token, or a logged halt at boot. Not `expect`: its `Debug` formatting of the

@@ -18,7 +18,7 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
 use gonio_firmware::timed::QueuedHal;
 use gonio_firmware::Device;
-use static_cell::ConstStaticCell;
+use static_cell::{ConstStaticCell, StaticCell};
 
 const USART1: usize = 0x4001_1000;
 const USART_SR: usize = USART1;
@@ -45,7 +45,23 @@ fn wr(addr: usize, v: u32) {
     unsafe { core::ptr::write_volatile(addr as *mut u32, v) }
 }
 
-pub fn start(spawner: Spawner) {
+/// The board's executor (embassy's thread-mode `raw::Executor`), idling in WFI instead of WFE: QEMU
+/// 7.2 runs WFE as a busy yield, which under `-icount` spends the guest's time spinning. A wake
+/// from thread mode (embassy's pender is `sev`) waits for the next interrupt, at most a SysTick.
+#[cortex_m_rt::entry]
+fn main() -> ! {
+    static EXECUTOR: StaticCell<embassy_executor::raw::Executor> = StaticCell::new();
+    // The thread-mode pender's context (embassy-executor's `THREAD_PENDER`): `sev`.
+    let executor = EXECUTOR.init(embassy_executor::raw::Executor::new(usize::MAX as *mut ()));
+    start(executor.spawner());
+    loop {
+        // SAFETY: polled from this one thread-mode loop only.
+        unsafe { executor.poll() };
+        cortex_m::asm::wfi();
+    }
+}
+
+fn start(spawner: Spawner) {
     qemu_board::start_time();
     info!(
         "gonio-stm32 (QEMU netduinoplus2) up: SYSCLK {=u32} Hz, SysTick every {=u32} us",
