@@ -130,3 +130,62 @@ fn with_every_credit_lost_the_scan_completes_on_status_alone() {
     assert!(rx.dropped >= chunks - 1, "{rx:?}");
     assert!(summary.stats.status_requests > 0);
 }
+
+/// A port that goes away (a USB replug) once `after` bytes came from the device.
+struct CutAfter {
+    inner: SerialTransport,
+    after: usize,
+}
+
+impl link::Transport for CutAfter {
+    fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        self.inner.write_all(bytes)
+    }
+    fn read(&mut self, buf: &mut [u8], timeout: Duration) -> std::io::Result<usize> {
+        if self.after == 0 {
+            return Err(std::io::Error::new(std::io::ErrorKind::BrokenPipe, "unplugged"));
+        }
+        let n = buf.len().min(self.after);
+        let got = self.inner.read(&mut buf[..n], timeout)?;
+        self.after -= got;
+        Ok(got)
+    }
+}
+
+/// The port goes away mid-scan while the device keeps measuring: on reconnect the host takes the
+/// readings the device kept before anything resets it, so no direction is measured twice.
+#[test]
+fn a_reconnect_collects_the_readings_the_device_kept() {
+    let n = 120;
+    let fx = Fixture::new(n, "");
+    let cfg = fx.instrument_config();
+    let model = SimModel::load(&fx.scene, cfg, 1).unwrap();
+    let sim = SimHandle::spawn(Arc::new(model), SPEEDUP, None).unwrap();
+    let port = sim.path().display().to_string();
+    let plan = plan(n);
+    let out = fx.path("replug");
+    std::fs::create_dir_all(&out).unwrap();
+    let mut journal = Journal::create(&out, 1, n as u32).unwrap();
+    // Enough bytes for the handshake, configuration, homing and a few dozen readings.
+    let cut = CutAfter {
+        inner: SerialTransport::open(&port).unwrap(),
+        after: 4_000,
+    };
+    let summary = link::run_plan(
+        Box::new(cut),
+        &mut ReopenPath(port),
+        &cfg,
+        &plan,
+        &mut journal,
+        &mut Quiet,
+        &RunOptions::default(),
+    )
+    .unwrap();
+    let readings = sim.counters().readings.load(std::sync::atomic::Ordering::Relaxed);
+    sim.stop();
+    assert_eq!(summary.reconnects, 1, "{summary:?}");
+    let mut indices = journal_indices(&out);
+    indices.sort_unstable();
+    assert_eq!(indices, (0..n as u32).collect::<Vec<_>>(), "journaled exactly once");
+    assert_eq!(readings, n as u64, "directions measured again after the reconnect");
+}

@@ -153,7 +153,15 @@ impl Controller {
 
     /// The next instant `poll` has work, `None` when only the host can make progress.
     pub fn next_deadline_us(&self) -> Option<u64> {
-        let own = self.own_deadline_us();
+        if self.more_work {
+            return Some(self.last_now_us);
+        }
+        // A move polls at least at each ring refill and at its end, and the host-silence check
+        // in `poll` runs then: only a scan standing still needs the silence deadline.
+        if let Some(t) = self.stepper.next_due_us() {
+            return Some(t);
+        }
+        let own = self.phase_deadline_us();
         let silence = (self.state == ControllerState::Running).then(|| self.host_silent_at());
         match (own, silence) {
             (Some(a), Some(b)) => Some(a.min(b)),
@@ -176,14 +184,8 @@ impl Controller {
         self.host_silent_us = us.max(1);
     }
 
-    /// The scan's and the stepper's next deadline.
-    fn own_deadline_us(&self) -> Option<u64> {
-        if self.more_work {
-            return Some(self.last_now_us);
-        }
-        if let Some(t) = self.stepper.next_due_us() {
-            return Some(t);
-        }
+    /// The scan phase's next deadline while no move runs.
+    fn phase_deadline_us(&self) -> Option<u64> {
         match self.phase {
             Phase::Settling { until_us, .. } => Some(until_us),
             Phase::Exposing {

@@ -116,6 +116,8 @@ pub struct AxisProfile {
     c: f32,
     /// Steps covered by each ramp, and its whole part: the last ramp step.
     ramp: f32,
+    /// `sqrt(ramp)`, once: every deceleration step time needs it.
+    sqrt_ramp: f32,
     last_ramp: u32,
     /// The first step of the deceleration ramp.
     first_decel: u32,
@@ -191,7 +193,8 @@ impl AxisProfile {
         let first_decel = (-Real::floor(ramp - n)) as u32;
         let first_decel = first_decel.max(last_ramp + 1);
         let cruise = cruise_interval(unit.peak_speed, total);
-        let t_ramp = fixed(c * Real::sqrt(ramp));
+        let sqrt_ramp = Real::sqrt(ramp);
+        let t_ramp = fixed(c * sqrt_ramp);
         let frac = fixed((ramp - last_ramp as f32) * to_ticks(cruise as i64));
         let cruise_span = cruise.wrapping_mul(u64::from(total.saturating_sub(2 * last_ramp)));
         let t_decel = t_ramp.wrapping_add(cruise_span).saturating_sub(2 * frac);
@@ -200,6 +203,7 @@ impl AxisProfile {
             increasing,
             c,
             ramp,
+            sqrt_ramp,
             last_ramp,
             first_decel,
             cruise,
@@ -219,7 +223,7 @@ impl AxisProfile {
         } else {
             // c (sqrt(ramp) - sqrt(left)), written so the difference does not cancel.
             let left = self.total.saturating_sub(k) as f32;
-            let span = self.c * (self.ramp - left) / (Real::sqrt(self.ramp) + Real::sqrt(left));
+            let span = self.c * (self.ramp - left) / (self.sqrt_ramp + Real::sqrt(left));
             self.t_decel.wrapping_add(fixed(span))
         }
     }

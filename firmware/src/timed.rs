@@ -60,13 +60,6 @@ impl<B: Clock + Switches + Detector, Q: SharedQueue> QueuedHal<B, Q> {
     /// Run the controller up to the horizon. Returns the real instant to call again (`None`:
     /// only the host can make progress). Call it also after every `Device::receive`.
     pub fn run(&mut self, device: &mut Device) -> Option<u64> {
-        // Once per turn of the loop, not per poll, and only when it is behind its own schedule
-        // clock: it is the loop that may have come back late.
-        let real = self.board.now_us();
-        if real > self.now_us && device.controller().is_moving() {
-            self.now_us = real;
-            device.check_steps_on_time(self, real);
-        }
         for _ in 0..POLLS_PER_RUN {
             let real = self.board.now_us();
             self.now_us = self.now_us.max(real);
@@ -90,7 +83,7 @@ impl<B: Clock + Switches + Detector, Q: SharedQueue> QueuedHal<B, Q> {
                 });
             }
             self.now_us = self.now_us.max(t);
-            self.poll_device(device);
+            self.poll_device(device, real);
         }
         Some(self.board.now_us())
     }
@@ -98,7 +91,10 @@ impl<B: Clock + Switches + Detector, Q: SharedQueue> QueuedHal<B, Q> {
     /// The controller's poll, out of line: most turns of the loop during a move only read the
     /// switches and find nothing due, and should not pay for the poll's stack frame.
     #[inline(never)]
-    fn poll_device(&mut self, device: &mut Device) {
+    fn poll_device(&mut self, device: &mut Device, real: u64) {
+        // Before the poll refills the rings: a loop that came back (real time `real`) after one
+        // ran dry was late. Here, not on every turn: only a poll refills, so none can hide it.
+        device.check_steps_on_time(self, real);
         device.poll(self);
         self.arm(device.stop_mask());
     }

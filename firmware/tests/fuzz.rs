@@ -11,15 +11,13 @@
 
 mod common;
 
+use common::board::{isr, isr_at, sim_hal, SimHal};
 use common::*;
-use gonio_firmware::step_queue::StepQueue;
-use gonio_firmware::timed::{tick, QueuedHal, SharedQueue};
-use gonio_firmware::{Clock, Detector, Device, Readout, Switches};
+use gonio_firmware::timed::SharedQueue;
+use gonio_firmware::Device;
 use gonio_shared::frame::{encode, Frame, FrameDecoder, MAX_PAYLOAD, MAX_WIRE_FRAME};
-use gonio_shared::instrument::{InstrumentConfig, AXES};
+use gonio_shared::instrument::InstrumentConfig;
 use gonio_shared::msg::{DeviceMsg, Direction, Hello, HostMsg, PlanChunk, PROTOCOL_VERSION};
-use gonio_shared::Axis;
-use std::cell::RefCell;
 
 /// SplitMix64: small, seeded, good enough to pick fuzz inputs.
 struct Rng(u64);
@@ -148,51 +146,6 @@ fn reencode_device(seq: u16, msg: &DeviceMsg) -> Vec<u8> {
     out[..n].to_vec()
 }
 
-/// The board: real time, true positions from played edges, switches, a detector.
-struct Board {
-    real: u64,
-    pos: [i64; 4],
-    dir: [bool; 4],
-    switches: [SwitchModel; 4],
-    forced: u8,
-    exposure_done: Option<u64>,
-    detector_dead: bool,
-}
-
-impl Clock for Board {
-    fn now_us(&self) -> u64 {
-        self.real
-    }
-}
-
-impl Switches for Board {
-    fn limit_closed(&self, axis: Axis) -> bool {
-        let i = axis.index();
-        self.forced & (1 << i) != 0 || self.switches[i].closed(self.pos[i])
-    }
-}
-
-impl Detector for Board {
-    fn start_exposure(&mut self, exposure_us: u32) {
-        self.exposure_done = Some(self.real + u64::from(exposure_us));
-    }
-    fn poll_readout(&mut self) -> Option<Readout> {
-        let done = self.exposure_done.filter(|&d| !self.detector_dead && self.real >= d)?;
-        self.exposure_done = None;
-        let mut r = Readout::new();
-        r.push(done as u32).unwrap();
-        Some(r)
-    }
-}
-
-struct Shared(RefCell<StepQueue>);
-
-impl SharedQueue for Shared {
-    fn with<R>(&self, f: impl FnOnce(&mut StepQueue) -> R) -> R {
-        f(&mut self.0.borrow_mut())
-    }
-}
-
 #[derive(Default, Debug)]
 struct Counts {
     frames: u64,
@@ -211,7 +164,7 @@ struct Counts {
 struct Fuzz {
     rng: Rng,
     dev: Box<Device>,
-    hal: QueuedHal<Board, Shared>,
+    hal: SimHal,
     run_at: Option<u64>,
     seq: u16,
     dec: FrameDecoder,
@@ -223,37 +176,24 @@ struct Fuzz {
 
 impl Fuzz {
     fn drain(&mut self) {
-        let mut buf = [0u8; 256];
-        loop {
-            let n = self.dev.drain_outbox(&mut buf);
-            if n == 0 {
-                return;
-            }
-            for &b in &buf[..n] {
-                match self.dec.push::<DeviceMsg>(b) {
-                    None => {}
-                    Some(Ok(Frame { msg, .. })) => {
-                        self.counts.device_frames += 1;
-                        match &msg {
-                            DeviceMsg::Refused { .. } => self.counts.refusals += 1,
-                            DeviceMsg::Fault(f) => {
-                                self.counts.faults += 1;
-                                *self
-                                    .fault_kinds
-                                    .entry(format!("{f:?}").split([' ', '(']).next().unwrap_or("").to_string())
-                                    .or_default() += 1;
-                            }
-                            DeviceMsg::Measurement(m) => {
-                                self.counts.measurements += 1;
-                                self.last_measurement = self.last_measurement.max(m.seq);
-                            }
-                            _ => {}
-                        }
-                        self.got.push(msg);
-                    }
-                    Some(Err(e)) => panic!("the device sent a frame that does not decode: {e:?}"),
+        for Frame { msg, .. } in drain_device(&mut self.dev, &mut self.dec) {
+            self.counts.device_frames += 1;
+            match &msg {
+                DeviceMsg::Refused { .. } => self.counts.refusals += 1,
+                DeviceMsg::Fault(f) => {
+                    self.counts.faults += 1;
+                    *self
+                        .fault_kinds
+                        .entry(format!("{f:?}").split([' ', '(']).next().unwrap_or("").to_string())
+                        .or_default() += 1;
                 }
+                DeviceMsg::Measurement(m) => {
+                    self.counts.measurements += 1;
+                    self.last_measurement = self.last_measurement.max(m.seq);
+                }
+                _ => {}
             }
+            self.got.push(msg);
         }
     }
 
@@ -449,15 +389,7 @@ impl Fuzz {
         let until = self.hal.board.real + us;
         let (mut last_t, mut same) = (u64::MAX, 0u32);
         loop {
-            let now = self.hal.board.real;
-            let isr = self.hal.queue.with(|q| q.next_wake(tick(now))).map(|w| {
-                let ahead = w.wrapping_sub(tick(now));
-                if ahead >= 1 << 31 {
-                    now
-                } else {
-                    now + u64::from(ahead)
-                }
-            });
+            let isr = isr_at(&self.hal);
             let Some(t) = [isr, self.run_at].into_iter().flatten().min().filter(|&t| t <= until) else {
                 break;
             };
@@ -477,30 +409,10 @@ impl Fuzz {
     }
 
     fn isr(&mut self) {
-        let now = self.hal.board.real;
-        let (pins, _) = self.hal.queue.with(|q| q.service(tick(now)));
-        let mut closed_now = 0u8;
-        for axis in AXES {
-            let (i, bit) = (axis.index(), 1u8 << axis.index());
-            let b = &mut self.hal.board;
-            if pins.dir_increasing & bit != 0 {
-                b.dir[i] = true;
-            }
-            if pins.dir_decreasing & bit != 0 {
-                b.dir[i] = false;
-            }
-            if pins.step_high & bit != 0 {
-                let was = b.limit_closed(axis);
-                b.pos[i] += if b.dir[i] { 1 } else { -1 };
-                self.counts.step_edges += 1;
-                if !was && b.limit_closed(axis) {
-                    closed_now |= bit;
-                }
-            }
-        }
-        if closed_now != 0 {
+        let (rose, closed) = isr(&mut self.hal);
+        self.counts.step_edges += u64::from(rose.count_ones());
+        if closed != 0 {
             self.counts.trips += 1;
-            self.hal.queue.with(|q| q.trip(closed_now));
         }
     }
 }
@@ -508,19 +420,10 @@ impl Fuzz {
 #[test]
 fn a_device_on_the_step_queue_survives_a_million_hostile_host_frames() {
     let cfg = coarse_config();
-    let board = Board {
-        real: 0,
-        pos: [0; 4],
-        dir: [true; 4],
-        switches: MockHal::new(&cfg).switches,
-        forced: 0,
-        exposure_done: None,
-        detector_dead: false,
-    };
     let mut f = Fuzz {
         rng: Rng(0x0026_5eed),
         dev: Box::new(Device::new()),
-        hal: QueuedHal::new(board, Shared(RefCell::new(StepQueue::new()))),
+        hal: sim_hal(&cfg, [0; 4]),
         run_at: Some(0),
         seq: 0,
         dec: FrameDecoder::new(),

@@ -9,68 +9,19 @@
 
 mod common;
 
+use common::board::{isr, isr_at, sim_hal, SimHal};
 use common::*;
-use gonio_firmware::step_queue::{QueueStats, StepQueue};
-use gonio_firmware::timed::{tick, QueuedHal, SharedQueue};
-use gonio_firmware::{Clock, Detector, Device, Readout, Switches};
-use gonio_shared::frame::{Frame, FrameDecoder};
+use gonio_firmware::step_queue::QueueStats;
+use gonio_firmware::timed::{tick, SharedQueue};
+use gonio_firmware::Device;
+use gonio_shared::frame::FrameDecoder;
 use gonio_shared::instrument::{InstrumentConfig, AXES};
 use gonio_shared::msg::{ControllerState, DeviceMsg, Direction, Fault, Hello, HostMsg, Measurement, PlanChunk};
 use gonio_shared::Axis;
-use std::cell::RefCell;
-
-struct SimBoard {
-    real: u64,
-    /// True positions and DIR levels, from played events only.
-    pos: [i64; 4],
-    dir: [bool; 4],
-    switches: [SwitchModel; 4],
-    forced: u8,
-    exposure_done: Option<u64>,
-    exposures: u32,
-}
-
-impl Clock for SimBoard {
-    fn now_us(&self) -> u64 {
-        self.real
-    }
-}
-
-impl Switches for SimBoard {
-    fn limit_closed(&self, axis: Axis) -> bool {
-        let i = axis.index();
-        self.forced & (1 << i) != 0 || self.switches[i].closed(self.pos[i])
-    }
-}
-
-impl Detector for SimBoard {
-    fn start_exposure(&mut self, exposure_us: u32) {
-        self.exposures += 1;
-        self.exposure_done = Some(self.real + exposure_us as u64);
-    }
-    fn poll_readout(&mut self) -> Option<Readout> {
-        let done = self.exposure_done?;
-        if self.real < done {
-            return None;
-        }
-        self.exposure_done = None;
-        let mut r = Readout::new();
-        r.push(self.exposures).unwrap();
-        Some(r)
-    }
-}
-
-struct Shared(RefCell<StepQueue>);
-
-impl SharedQueue for Shared {
-    fn with<R>(&self, f: impl FnOnce(&mut StepQueue) -> R) -> R {
-        f(&mut self.0.borrow_mut())
-    }
-}
 
 struct Sim {
     dev: Box<Device>,
-    hal: QueuedHal<SimBoard, Shared>,
+    hal: SimHal,
     run_at: Option<u64>,
     host_seq: u16,
     dec: FrameDecoder,
@@ -83,19 +34,9 @@ struct Sim {
 
 impl Sim {
     fn new(cfg: InstrumentConfig<f32>, start: [i64; 4]) -> Self {
-        let switches = MockHal::new(&cfg).switches;
-        let board = SimBoard {
-            real: 0,
-            pos: start,
-            dir: [true; 4],
-            switches,
-            forced: 0,
-            exposure_done: None,
-            exposures: 0,
-        };
         let mut s = Self {
             dev: Box::new(Device::new()),
-            hal: QueuedHal::new(board, Shared(RefCell::new(StepQueue::new()))),
+            hal: sim_hal(&cfg, start),
             run_at: Some(0),
             host_seq: 0,
             dec: FrameDecoder::new(),
@@ -109,18 +50,8 @@ impl Sim {
     }
 
     fn collect(&mut self) {
-        let mut buf = [0u8; 256];
-        loop {
-            let n = self.dev.drain_outbox(&mut buf);
-            if n == 0 {
-                return;
-            }
-            for &b in &buf[..n] {
-                if let Some(Ok(Frame { msg, .. })) = self.dec.push::<DeviceMsg>(b) {
-                    self.log.push(msg);
-                }
-            }
-        }
+        let frames = drain_device(&mut self.dev, &mut self.dec);
+        self.log.extend(frames.into_iter().map(|f| f.msg));
     }
 
     fn send(&mut self, msg: HostMsg) {
@@ -140,44 +71,19 @@ impl Sim {
         self.hal.queue.with(|q| q.stats())
     }
 
-    /// The timer interrupt's next wake-up, as real time.
     fn isr_at(&self) -> Option<u64> {
-        let now = self.hal.board.real;
-        let w = self.hal.queue.with(|q| q.next_wake(tick(now)))?;
-        let ahead = w.wrapping_sub(tick(now));
-        Some(if ahead >= 1 << 31 { now } else { now + ahead as u64 })
+        isr_at(&self.hal)
     }
 
+    /// The compare interrupt; every rising STEP edge is logged.
     fn isr(&mut self) {
         let now = self.hal.board.real;
-        let (pins, _) = self.hal.queue.with(|q| q.service(tick(now)));
-        let b = &mut self.hal.board;
-        for axis in AXES {
-            let (i, bit) = (axis.index(), 1u8 << axis.index());
-            if pins.dir_increasing & bit != 0 {
-                b.dir[i] = true;
-            }
-            if pins.dir_decreasing & bit != 0 {
-                b.dir[i] = false;
-            }
-        }
-        let mut closed_now = 0u8;
-        for axis in AXES {
-            let (i, bit) = (axis.index(), 1u8 << axis.index());
-            if pins.step_high & bit != 0 {
-                let was = self.hal.board.limit_closed(axis);
-                let b = &mut self.hal.board;
-                b.pos[i] += if b.dir[i] { 1 } else { -1 };
-                self.edges.push((now, axis));
-                if !was && self.hal.board.limit_closed(axis) {
-                    closed_now |= bit;
-                }
-            }
-        }
-        if closed_now != 0 {
-            // The EXTI interrupt: a closing edge.
-            self.hal.queue.with(|q| q.trip(closed_now));
-        }
+        let (rose, _) = isr(&mut self.hal);
+        self.edges.extend(
+            AXES.into_iter()
+                .filter(|a| rose & (1 << a.index()) != 0)
+                .map(|a| (now, a)),
+        );
     }
 
     /// Run until nothing is scheduled or `until` (real time); a switch forced closed at `force`.
@@ -215,6 +121,20 @@ impl Sim {
                 self.collect();
             }
         }
+    }
+
+    /// The reference instrument homed and 300 ms into the first of two four-axis moves (its
+    /// rings hold many steps).
+    fn mid_move() -> (InstrumentConfig<f32>, Self) {
+        let cfg = InstrumentConfig::<f32>::reference();
+        let mut sim = Self::new(cfg, [0; 4]);
+        sim.home();
+        sim.plan(&[dir_deg(70.0, 0.0, 10.0, 90.0), dir_deg(10.0, 0.0, 70.0, -90.0)]);
+        sim.send(HostMsg::Start);
+        let t0 = sim.hal.board.real;
+        sim.run_until(t0 + 300_000, None);
+        assert!(sim.dev.controller().is_moving());
+        (cfg, sim)
     }
 
     fn home(&mut self) {
@@ -322,14 +242,7 @@ fn the_queue_keeps_ahead_at_full_speed_on_the_reference_instrument() {
 #[test]
 fn a_limit_switch_stops_playback_at_the_instant_it_closes_and_faults() {
     // The reference instrument, so that the queue holds many steps when the switch closes.
-    let cfg = InstrumentConfig::<f32>::reference();
-    let mut sim = Sim::new(cfg, [0; 4]);
-    sim.home();
-    sim.plan(&[dir_deg(70.0, 0.0, 10.0, 90.0), dir_deg(10.0, 0.0, 70.0, -90.0)]);
-    sim.send(HostMsg::Start);
-    // Let the first move get going, then close the tilt switch mid-move.
-    let t0 = sim.hal.board.real;
-    sim.run_until(t0 + 300_000, None);
+    let (_, mut sim) = Sim::mid_move();
     let queued = sim
         .hal
         .queue
@@ -366,6 +279,33 @@ fn a_limit_switch_stops_playback_at_the_instant_it_closes_and_faults() {
     assert_eq!(sim.dev.controller().state(), ControllerState::Fault);
     assert!(!sim.dev.controller().homed());
     assert!(sim.measurements().is_empty());
+}
+
+/// A switch whose interrupt never fires (an edge the EXTI missed, a contact already closed) is
+/// seen by the loop's switch poll: playback stops within `SWITCH_POLL_US` and the queued steps are
+/// dropped, not played out.
+#[test]
+fn a_switch_seen_only_by_polling_stops_playback_and_drops_the_queued_steps() {
+    use gonio_firmware::timed::SWITCH_POLL_US;
+    let (_, mut sim) = Sim::mid_move();
+    // The tilt switch closes with no interrupt: only its level changes.
+    let t_close = sim.hal.board.real + 1;
+    sim.hal.board.forced |= 1 << Axis::Tilt.index();
+    sim.run_until(u64::MAX, None);
+    let last = sim.edges.last().map_or(0, |e| e.0);
+    assert!(
+        last <= t_close + SWITCH_POLL_US,
+        "steps {} us after the switch closed",
+        last - t_close
+    );
+    assert!(
+        sim.stats().flushed > 0,
+        "queued steps were played out: {:?}",
+        sim.stats()
+    );
+    assert!(sim.hal.queue.with(|q| q.is_idle()));
+    assert_eq!(faults_in(&sim.log), vec![Fault::LimitSwitch(Axis::Tilt)]);
+    assert_eq!(sim.dev.controller().position(), sim.hal.board.pos.map(|p| p as i32));
 }
 
 #[test]
@@ -418,14 +358,7 @@ fn faults_in(log: &[DeviceMsg]) -> Vec<Fault> {
 
 #[test]
 fn a_loop_that_falls_behind_the_step_generator_is_a_steps_late_fault() {
-    let cfg = InstrumentConfig::<f32>::reference();
-    let mut sim = Sim::new(cfg, [0; 4]);
-    sim.home();
-    sim.plan(&[dir_deg(70.0, 0.0, 10.0, 90.0), dir_deg(10.0, 0.0, 70.0, -90.0)]);
-    sim.send(HostMsg::Start);
-    let t0 = sim.hal.board.real;
-    sim.run_until(t0 + 300_000, None);
-    assert!(sim.dev.controller().is_moving());
+    let (cfg, mut sim) = Sim::mid_move();
     // The loop stalls for 200 ms (far past what the rings hold) while the channels play on.
     let stalled_until = sim.hal.board.real + 200_000;
     sim.run_at = Some(stalled_until);

@@ -3,6 +3,8 @@
 //! decodes the device's replies and drives the clock from `Device::next_deadline_us`.
 #![allow(dead_code)]
 
+pub mod board;
+
 use gonio_firmware::{Clock, Detector, Device, Readout, Steppers, Switches};
 use gonio_shared::frame::{encode, Frame, FrameDecoder, MAX_WIRE_FRAME};
 use gonio_shared::instrument::{AxisConfig, HomeSide, InstrumentConfig, AXES};
@@ -254,22 +256,9 @@ impl Bench {
 
     /// Drain the outbox and decode what the device sent.
     pub fn collect(&mut self) {
-        let mut buf = [0u8; 256];
-        loop {
-            let n = self.dev.drain_outbox(&mut buf);
-            if n == 0 {
-                break;
-            }
-            for &b in &buf[..n] {
-                match self.host_dec.push::<DeviceMsg>(b) {
-                    None => {}
-                    Some(Ok(Frame { seq, msg })) => {
-                        self.device_seqs.push(seq);
-                        self.log.push(msg);
-                    }
-                    Some(Err(e)) => panic!("device sent a bad frame: {e:?}"),
-                }
-            }
+        for Frame { seq, msg } in drain_device(&mut self.dev, &mut self.host_dec) {
+            self.device_seqs.push(seq);
+            self.log.push(msg);
         }
     }
 
@@ -376,5 +365,25 @@ pub fn fixed_seed_config(cases: u32, seed: u64) -> proptest::test_runner::Config
         rng_seed: proptest::test_runner::RngSeed::Fixed(seed),
         failure_persistence: None,
         ..proptest::test_runner::Config::default()
+    }
+}
+
+/// Everything in the device's outbox, decoded by the host's `dec` (a frame that does not decode
+/// fails the test).
+pub fn drain_device(dev: &mut Device, dec: &mut FrameDecoder) -> Vec<Frame<DeviceMsg>> {
+    let mut frames = Vec::new();
+    let mut buf = [0u8; 256];
+    loop {
+        let n = dev.drain_outbox(&mut buf);
+        if n == 0 {
+            return frames;
+        }
+        for &b in &buf[..n] {
+            match dec.push::<DeviceMsg>(b) {
+                None => {}
+                Some(Ok(f)) => frames.push(f),
+                Some(Err(e)) => panic!("the device sent a frame that does not decode: {e:?}"),
+            }
+        }
     }
 }

@@ -99,6 +99,42 @@ impl<T: Transport> Link<T> {
         Err(LinkError::Silent("no status reply".into()))
     }
 
+    /// Reconnected after a connection loss: take the readings the device kept from our last
+    /// session (which had taken `from` of them in order) before `prepare` resets it. Only a device
+    /// still in that scan has them (homed, readings unacknowledged); a running scan is paused
+    /// first, so it finishes its direction and the collection ends.
+    pub fn collect_kept(&mut self, from: u32, sink: &mut dyn MeasurementSink) -> Result<(), LinkError> {
+        let s = self.status()?;
+        let in_scan = matches!(
+            s.state,
+            ControllerState::Running | ControllerState::Paused | ControllerState::Done | ControllerState::Fault
+        );
+        if s.unacked == 0 || !s.homed || !in_scan {
+            return Ok(());
+        }
+        if s.state == ControllerState::Running {
+            self.r.send(&HostMsg::Pause)?;
+        }
+        self.send_counted(&HostMsg::ResendMeasurements { from })?;
+        let mut next = from;
+        let mut last = Instant::now();
+        while last.elapsed() < self.r.timing.rto * 4 {
+            if let Some(DeviceMsg::Measurement(m)) = self.r.next_msg(Duration::from_millis(20))? {
+                last = Instant::now();
+                if m.seq == next {
+                    sink.record(&m).map_err(LinkError::Sink)?;
+                    next += 1;
+                }
+            }
+        }
+        if next > from {
+            sink.sync().map_err(LinkError::Sink)?;
+            self.r.send(&HostMsg::AckMeasurements { through: next - 1 })?;
+            self.r.flush()?;
+        }
+        Ok(())
+    }
+
     /// Bring the device to Ready with `cfg` and homed, whatever it was doing (a previous host's
     /// scan, a fault).
     pub fn prepare(&mut self, cfg: &InstrumentConfig<f32>) -> Result<Status, LinkError> {
@@ -246,15 +282,20 @@ impl<T: Transport> Link<T> {
                 Reading::Early => {}
             },
             DeviceMsg::Fault(f) => return Err(self.stop_on_fault(Some(f), stream.received(), sink)),
-            DeviceMsg::Status(s) => match stream.on_status(&s, now) {
-                Ok(replies) => {
-                    for reply in &replies {
-                        self.send_counted(reply)?;
-                    }
+            DeviceMsg::Status(s) => {
+                if self.r.all_acked() {
+                    stream.on_settled_status(&s, self.r.next_seq());
                 }
-                Err(Stop::Fault(fault)) => return Err(self.stop_on_fault(fault, stream.received(), sink)),
-                Err(Stop::Error(e)) => return Err(e),
-            },
+                match stream.on_status(&s, now) {
+                    Ok(replies) => {
+                        for reply in &replies {
+                            self.send_counted(reply)?;
+                        }
+                    }
+                    Err(Stop::Fault(fault)) => return Err(self.stop_on_fault(fault, stream.received(), sink)),
+                    Err(Stop::Error(e)) => return Err(e),
+                }
+            }
             DeviceMsg::Refused { seq, command, reason } => {
                 if let Some(ask) = stream.on_refused(seq, command, reason, self.r.next_seq())? {
                     if self.r.window_free() {

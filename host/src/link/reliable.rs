@@ -146,6 +146,11 @@ impl<T: Transport> Reliable<T> {
         self.tx_seq
     }
 
+    /// Every frame sent has been acknowledged (the device has executed them all).
+    pub fn all_acked(&self) -> bool {
+        self.inflight.is_empty()
+    }
+
     pub fn window_free(&self) -> bool {
         self.inflight.len() < WINDOW
     }

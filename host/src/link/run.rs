@@ -108,7 +108,19 @@ struct JournalSink<'a> {
     base_s: f64,
 }
 
-impl JournalSink<'_> {
+impl<'a> JournalSink<'a> {
+    fn new(journal: &'a mut Journal, map: &'a [u32], progress: &'a mut dyn Progress, base_s: f64) -> Self {
+        Self {
+            journal,
+            map,
+            progress,
+            measured: 0,
+            first_us: None,
+            last_us: 0,
+            base_s,
+        }
+    }
+
     /// Instrument seconds from this session's first exposure to its last reading.
     fn span_s(&self) -> f64 {
         self.first_us.map_or(0.0, |f| (self.last_us - f) as f64 * 1e-6)
@@ -139,31 +151,96 @@ impl MeasurementSink for JournalSink<'_> {
     }
 }
 
-/// Handshake, prepare and stream `sub` over `t` into `sink`; the link counters and how it ended.
+/// Readings of a session that ended in a connection loss which the device may still keep: the
+/// session's stream-to-plan index map and how many readings it took in order.
+struct Kept {
+    map: Vec<u32>,
+    from: u32,
+}
+
+/// How one session ended.
+struct Session {
+    stats: LinkStats,
+    result: Result<(), LinkError>,
+    /// The session's stream-to-plan index map.
+    map: Vec<u32>,
+    /// The device was configured for `map` (so it numbers its readings by it).
+    streamed: bool,
+    measured: u32,
+    span_s: f64,
+}
+
+/// Handshake; take the readings the device kept from our previous session (`kept`, cleared once
+/// taken); prepare and stream what the journal still lacks below `limit`.
+#[allow(clippy::too_many_arguments)]
 fn run_session(
     t: Box<dyn Transport>,
     cfg: &InstrumentConfig<f32>,
-    sub: &[Direction],
-    sink: &mut JournalSink,
+    plan: &[Direction],
+    limit: u32,
+    journal: &mut Journal,
+    progress: &mut dyn Progress,
+    kept: &mut Option<Kept>,
+    base_s: f64,
     timing: LinkTiming,
-) -> (LinkStats, Result<(), LinkError>) {
+) -> Session {
+    let mut session = Session {
+        stats: LinkStats::default(),
+        result: Ok(()),
+        map: Vec::new(),
+        streamed: false,
+        measured: 0,
+        span_s: 0.0,
+    };
     let mut link = match Link::connect(t, timing) {
         Ok(link) => link,
-        Err(e) => return (LinkStats::default(), Err(e)),
+        Err(e) => {
+            session.result = Err(e);
+            return session;
+        }
     };
-    if let Err(e) = link.prepare(cfg) {
-        return (link.stats(), Err(e));
+    if let Some(k) = kept.as_mut() {
+        let mut sink = JournalSink::new(journal, &k.map, progress, base_s);
+        let collected = link.collect_kept(k.from, &mut sink);
+        session.measured += sink.measured;
+        session.span_s += sink.span_s();
+        k.from += sink.measured;
+        if let Err(e) = collected {
+            session.stats = link.stats();
+            session.result = Err(e);
+            return session;
+        }
+        *kept = None;
     }
-    let result = link.scan(sub, sink);
+    session.map = journal.remaining_below(limit);
+    if session.map.is_empty() {
+        session.stats = link.stats();
+        return session;
+    }
+    let sub: Vec<Direction> = session
+        .map
+        .iter()
+        .filter_map(|&i| plan.get(i as usize).copied())
+        .collect();
+    let mut sink = JournalSink::new(journal, &session.map, progress, base_s + session.span_s);
+    let result = link.prepare(cfg).and_then(|_| {
+        session.streamed = true;
+        link.scan(&sub, &mut sink)
+    });
     if result.is_err() {
         let _ = sink.sync();
     }
-    (link.stats(), result)
+    session.measured += sink.measured;
+    session.span_s += sink.span_s();
+    session.stats = link.stats();
+    session.result = result;
+    session
 }
 
 /// Measure every plan direction the journal lacks, over `first` (an open transport) and, after a
 /// connection loss, whatever `reconnect` opens. Every measurement lands in the journal exactly
-/// once; the device is told it may forget readings only after they are synced.
+/// once; the device is told it may forget readings only after they are synced, and a device that
+/// comes back still holding readings of the lost session hands them over before anything resets it.
 pub fn run_plan(
     first: Box<dyn Transport>,
     reconnect: &mut dyn Reconnect,
@@ -193,40 +270,41 @@ pub fn run_plan_below(
     let cfg32 = cfg.cast::<f32>();
     let mut summary = RunSummary::default();
     let mut transport = Some(first);
+    let mut kept: Option<Kept> = None;
     loop {
-        let remaining = journal.remaining_below(limit);
-        if remaining.is_empty() {
+        if kept.is_none() && journal.remaining_below(limit).is_empty() {
             return Ok(summary);
         }
         let t = match transport.take() {
             Some(t) => t,
             None => wait_for_device(reconnect, opts, progress)?,
         };
-        let sub: Vec<Direction> = remaining
-            .iter()
-            .filter_map(|&i| plan.get(i as usize).copied())
-            .collect();
         summary.sessions += 1;
-        let mut sink = JournalSink {
-            journal: &mut *journal,
-            map: &remaining,
-            progress: &mut *progress,
-            measured: 0,
-            first_us: None,
-            last_us: 0,
-            base_s: summary.instrument_s,
-        };
-        let (stats, result) = run_session(t, &cfg32, &sub, &mut sink, opts.timing);
-        let (measured, span_s) = (sink.measured, sink.span_s());
+        let s = run_session(
+            t,
+            &cfg32,
+            plan,
+            limit,
+            journal,
+            progress,
+            &mut kept,
+            summary.instrument_s,
+            opts.timing,
+        );
         journal.session += 1;
-        summary.stats.add(&stats);
-        let Err(e) = result else {
-            summary.measured_now += measured;
-            summary.instrument_s += span_s;
+        summary.stats.add(&s.stats);
+        summary.measured_now += s.measured;
+        summary.instrument_s += s.span_s;
+        let Err(e) = s.result else {
             continue;
         };
         if !e.is_connection_loss() {
-            return Err(to_plan_indices(e, &remaining).into());
+            return Err(to_plan_indices(e, &s.map).into());
+        }
+        if s.streamed {
+            // What this session took in order; the device may keep the readings after those.
+            let from = journal_count_in(journal, &s.map);
+            kept = Some(Kept { map: s.map, from });
         }
         progress.note(&format!(
             "{e}; {} of {} directions are in the journal; waiting up to {:.0} s for the device",
@@ -236,6 +314,13 @@ pub fn run_plan_below(
         ));
         summary.reconnects += 1;
     }
+}
+
+/// Readings of a session's stream in the journal: the stream is measured in order, so these are
+/// its first ones.
+fn journal_count_in(journal: &Journal, map: &[u32]) -> u32 {
+    let n = map.iter().take_while(|i| journal.records().contains_key(i)).count();
+    u32::try_from(n).unwrap_or(u32::MAX)
 }
 
 /// The device numbers the directions of this session's stream from 0; the user knows them by

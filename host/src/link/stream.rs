@@ -239,12 +239,33 @@ impl<'a> PlanStream<'a> {
             // Our Start was refused or lost (e.g. sent before the plan reached it).
             replies.push(HostMsg::Start);
         }
+        // We never pause a scan: a device paused with room for readings held because it heard
+        // nothing from us for a while (`HOST_SILENT_US`); we are back, so it may go on. (A full
+        // buffer resumes by itself once our acknowledgements free it.)
+        let room = usize::from(s.unacked) < gonio_firmware::capacity::MEASUREMENT_CAPACITY;
+        if s.state == ControllerState::Paused && room && self.started && self.next_reading < self.total {
+            replies.push(HostMsg::Resume);
+        }
         if std::mem::take(&mut self.probing) && s.plan_done > self.next_reading && self.resend_allowed(now) {
             replies.push(HostMsg::ResendMeasurements {
                 from: self.ask_resend(now),
             });
         }
         Ok(replies)
+    }
+
+    /// A status read while every frame we sent is acknowledged (`next_seq`: our next frame's
+    /// sequence number). A device that ran out of plan short of what we sent refused a chunk and
+    /// the refusal was lost (a lossy link): go back to where it stands, as the refusal would have.
+    /// Only a starved device counts: a status that overtook our last chunks' Acks shows an older
+    /// `plan_next`, but then the device still has plan to measure.
+    pub fn on_settled_status(&mut self, s: &Status, next_seq: u16) {
+        let starved =
+            s.plan_done >= s.plan_next && matches!(s.state, ControllerState::Running | ControllerState::Ready);
+        if starved && s.plan_next < self.next_send {
+            self.next_send = s.plan_next;
+            self.epoch = next_seq;
+        }
     }
 
     /// The device refused frame `seq`; `next_seq` is the sequence number our next frame goes

@@ -10,7 +10,7 @@
 //! it is), its weight the sum over its texels of radiance x texel solid angle; empty cells are
 //! dropped. The render converges to the map's exact integral as the cells shrink; what it costs
 //! against a 1,024 spp Monte Carlo render is what `lab/examples/env_quadrature.rs` prints
-//! (figures not yet recorded, see `docs/render.md`).
+//! (figures in `docs/render.md`).
 
 use super::envmap::{uv_to_direction, EnvMap};
 use super::geometry::Hit;

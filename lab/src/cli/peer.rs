@@ -16,6 +16,9 @@ pub struct PeerArgs {
     /// Environment render side in pixels.
     #[arg(long, default_value_t = 128)]
     pub env_size: usize,
+    /// Nested levels instead of the default 2x2,4x4,8x8,16x16 (e.g. 2x2,4x4,8x8 to fit a time budget).
+    #[arg(long, value_parser = tradeoff::parse_grids)]
+    pub levels: Option<tradeoff::Grids>,
     /// Only the held-out MERL run, or only the real one.
     #[arg(long, value_parser = ["heldout", "real"])]
     pub only: Option<String>,
@@ -33,11 +36,13 @@ pub fn run_peer(args: PeerArgs) -> Result<()> {
         TradeStrategy::Uniform,
         TradeStrategy::Nielsen2015,
     ];
+    let grids = args.levels.map_or_else(|| TradeoffConfig::default().grids, |g| g.0);
     let runs = [
         (
             "heldout",
             TradeoffConfig {
                 strategies: strategies.clone(),
+                grids: grids.clone(),
                 env_size: args.env_size,
                 ..TradeoffConfig::preset(Preset::Heldout)
             },
@@ -47,6 +52,7 @@ pub fn run_peer(args: PeerArgs) -> Result<()> {
             TradeoffConfig {
                 materials: REAL_MATERIALS.iter().map(|s| s.to_string()).collect(),
                 strategies,
+                grids,
                 env_size: args.env_size,
                 ..TradeoffConfig::default()
             },

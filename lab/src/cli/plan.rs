@@ -187,6 +187,9 @@ pub struct ClosedLoopArgs {
     /// constants) instead of running the loop again.
     #[arg(long, value_name = "CSV")]
     pub rows: Option<PathBuf>,
+    /// The environment-lit scene the env FLIP is scored in (noise-free quadrature render).
+    #[arg(long, default_value = "examples/sphere-sky.toml")]
+    pub env_scene: PathBuf,
     #[arg(short, long)]
     pub output: PathBuf,
 }
@@ -199,16 +202,19 @@ pub fn run_closed_loop(args: ClosedLoopArgs) -> Result<()> {
     } else {
         args.materials
     };
+    let source = match args.rows.as_deref() {
+        Some(csv) => tradeoff::closed_loop::RowSource::Csv(csv),
+        None => tradeoff::closed_loop::RowSource::Simulate {
+            materials: &materials,
+            instrument: &instrument,
+            max_level,
+            env_scene: Box::new(
+                gonio::render::Scene::load(&args.env_scene).with_context(|| "--env-scene".to_string())?,
+            ),
+        },
+    };
     let bar = indicatif::ProgressBar::new(materials.len() as u64);
     with_progress(bar, |progress| {
-        tradeoff::closed_loop::run(
-            args.preset,
-            &materials,
-            &instrument,
-            max_level,
-            args.rows.as_deref(),
-            &args.output,
-            progress,
-        )
+        tradeoff::closed_loop::run(args.preset, source, &args.output, progress)
     })
 }

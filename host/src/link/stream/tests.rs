@@ -293,3 +293,52 @@ fn an_empty_plan_is_complete_at_once() {
     let s = PlanStream::new(&[], 0, LinkTiming::default(), Instant::now()).unwrap();
     assert!(s.is_complete());
 }
+
+/// On a lossy link the `Refused` of the last chunk is lost: everything is acknowledged, the
+/// device's status keeps showing it starved before that chunk. Without a rewind the scan would
+/// wait forever (statuses keep flowing, so the link never counts as silent).
+#[test]
+fn a_lost_refusal_of_the_last_chunk_rewinds_once_everything_is_acked() {
+    let p = plan(24);
+    let t0 = Instant::now();
+    let mut s = PlanStream::new(&p, 0, LinkTiming::default(), t0).unwrap();
+    s.on_credit(0, 24, t0);
+    let (frames, seq) = drain(&mut s, 0);
+    assert_eq!(chunk_starts(&frames), vec![0, 8, 16]);
+    // The chunk at 16 was refused and its refusal lost; the device measured all it took.
+    let starved = status(ControllerState::Running, 16, 8, 16);
+    s.on_settled_status(&starved, seq);
+    assert_eq!(s.on_status(&starved, t0).unwrap(), vec![]);
+    let (again, _) = drain(&mut s, seq);
+    assert_eq!(chunk_starts(&again), vec![16]);
+    // A status that overtook the Acks of chunks the device still works through: no rewind.
+    let mut s = PlanStream::new(&p, 0, LinkTiming::default(), t0).unwrap();
+    s.on_credit(0, 24, t0);
+    let (_, seq) = drain(&mut s, 0);
+    s.on_settled_status(&status(ControllerState::Running, 8, 16, 3), seq);
+    assert_eq!(drain(&mut s, seq).0, vec![]);
+}
+
+/// A device that heard nothing from us for `HOST_SILENT_US` holds the scan in Paused; once we
+/// hear it again we resume it (we never pause a scan ourselves). A buffer-full pause resumes by
+/// itself as our acknowledgements free it, so it gets no Resume.
+#[test]
+fn a_scan_held_for_host_silence_is_resumed_when_we_hear_it() {
+    let p = plan(24);
+    let t0 = Instant::now();
+    let mut s = PlanStream::new(&p, 0, LinkTiming::default(), t0).unwrap();
+    // Before our Start, a paused device is not ours to resume.
+    assert_eq!(
+        s.on_status(&status(ControllerState::Paused, 0, 24, 0), t0).unwrap(),
+        vec![]
+    );
+    s.on_credit(0, 24, t0);
+    drain(&mut s, 0);
+    let held = status(ControllerState::Paused, 24, 0, 5);
+    assert_eq!(s.on_status(&held, t0).unwrap(), vec![HostMsg::Resume]);
+    let full = Status {
+        unacked: gonio_firmware::capacity::MEASUREMENT_CAPACITY as u16,
+        ..held
+    };
+    assert_eq!(s.on_status(&full, t0).unwrap(), vec![]);
+}

@@ -22,8 +22,9 @@ use rayon::prelude::*;
 use std::path::PathBuf;
 
 /// Ridge weight: noise variance of a mapped measurement against the coefficients' unit-variance
-/// prior (each component scaled by its training standard deviation). Chosen by cross-validation on
-/// the training materials (`cargo run --release -p gonio-lab --example nielsen_check`).
+/// prior (each component scaled by its training standard deviation). Not yet the cross-validated
+/// value: `cargo run --release -p gonio-lab --example nielsen_check` (training materials only)
+/// prefers 0.003 or lower; the committed side-by-side runs used this one (docs/nielsen2015.md).
 pub const RIDGE: f64 = 0.03;
 
 /// Version of the cache files: bump it when the bins, the mapping or the selection change.
@@ -70,6 +71,9 @@ pub struct Design {
     /// A = rows of the basis at `bins`, each component scaled by its sigma (n x K).
     a: DMatrix<f64>,
     chol: Cholesky<f64, Dyn>,
+    /// Per bin: the clipped cosine product at its centre, 0 below the horizon (computed once per
+    /// set, not per fit: the centres' trigonometry cost more than the fit's algebra).
+    weight: Vec<f64>,
 }
 
 impl Design {
@@ -82,39 +86,54 @@ impl Design {
         let a = DMatrix::from_fn(bins.len(), k, |i, j| basis.row(bins[i])[j] as f64 * basis.sigma[j]);
         let normal = a.transpose() * &a + DMatrix::identity(k, k) * ridge;
         let chol = Cholesky::new(normal).ok_or("the ridge system is not positive definite")?;
-        Ok(Self { bins, pairs, a, chol })
+        let weight = (0..BINS)
+            .into_par_iter()
+            .map(|b| match basis.valid[b].then(|| centre(b)).flatten() {
+                Some((wi, wo)) => cos_weight(wi, wo),
+                None => 0.0,
+            })
+            .collect();
+        Ok(Self {
+            bins,
+            pairs,
+            a,
+            chol,
+            weight,
+        })
     }
 
     /// The reconstruction from `values[i]` = f(pairs[i]) (RGB, 1/sr).
     pub fn fit(&self, basis: &Basis, values: &[DVec3]) -> BinnedBrdf {
         let k = basis.k();
         // Per channel: residual of the mapped measurement against the mean, then the coefficients.
-        let coeffs: Vec<Vec<f32>> = (0..3)
-            .map(|c| {
-                let r = DVector::from_fn(self.bins.len(), |i, _| {
-                    let b = self.bins[i];
-                    let (wi, wo) = self.pairs[i];
-                    map(values[i][c] * cos_weight(wi, wo), basis.median[b]) - basis.mean[b]
-                });
-                let a = self.chol.solve(&(self.a.transpose() * r));
-                (0..k).map(|j| (a[j] * basis.sigma[j]) as f32).collect()
-            })
-            .collect();
+        let mut coeffs = vec![[0.0f32; 3]; k];
+        for c in 0..3 {
+            let r = DVector::from_fn(self.bins.len(), |i, _| {
+                let b = self.bins[i];
+                let (wi, wo) = self.pairs[i];
+                map(values[i][c] * cos_weight(wi, wo), basis.median[b]) - basis.mean[b]
+            });
+            let a = self.chol.solve(&(self.a.transpose() * r));
+            for (j, co) in coeffs.iter_mut().enumerate() {
+                co[c] = (a[j] * basis.sigma[j]) as f32;
+            }
+        }
         let values = (0..BINS)
             .into_par_iter()
             .with_min_len(1024)
             .map(|b| {
-                let Some((wi, wo)) = basis.valid[b].then(|| centre(b)).flatten() else {
+                let w = self.weight[b];
+                if w <= 0.0 {
                     return [0.0f32; 3];
-                };
-                let row = basis.row(b);
-                let w = cos_weight(wi, wo);
-                let mut out = [0.0f32; 3];
-                for (c, co) in coeffs.iter().enumerate() {
-                    let y: f32 = row.iter().zip(co).map(|(u, v)| u * v).sum();
-                    out[c] = (unmap(basis.mean[b] + y as f64, basis.median[b]) / w) as f32;
                 }
-                out
+                // The three channels in one pass over the bin's row (same sums, same order).
+                let mut y = [-0.0f32; 3];
+                for (u, co) in basis.row(b).iter().zip(&coeffs) {
+                    for (yc, cc) in y.iter_mut().zip(co) {
+                        *yc += u * cc;
+                    }
+                }
+                y.map(|y| (unmap(basis.mean[b] + y as f64, basis.median[b]) / w) as f32)
             })
             .collect();
         BinnedBrdf { values }

@@ -5,15 +5,18 @@
 //! recorded estimates. It reports what the estimator's constants are chosen from (true FLIP over
 //! the change between levels, held-out residual over the true error quantile), the predictive
 //! interval's calibration, the stop rules' hit rate and instrument time against the oracle, and
-//! the equal-directions ratio closed loop / uniform per level.
+//! the equal-directions ratios closed loop / uniform per level on point FLIP, environment FLIP
+//! (the noise-free quadrature render, `render::quadrature`) and `brdf_log_err`, and monotonicity.
 
 use super::{capture_photo, photo_estimate, HELDOUT_MATERIALS, TRAINING_MATERIALS};
 use crate::plan::report::{csv, write};
 use gonio::brdf::parse_material;
 use gonio::encoder::infer::Encoder;
 use gonio::encoder::ModelKind;
-use gonio::plan::closed_loop::{self, LevelAssessment, StopRule};
+use gonio::plan::closed_loop::{self, Assessor, LevelAssessment};
+use gonio::plan::predict::{score, Scorer};
 use gonio::plan::{square_grids, PlanConfig, PlanError, Planner, Strategy};
+use gonio::render::Scene;
 use gonio_shared::instrument::InstrumentConfig;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -66,12 +69,27 @@ pub struct LoopRow {
     pub true_psnr: Option<f64>,
     pub half_width: Option<f64>,
     pub coverage: Option<f64>,
+    /// `brdf_log_err` over the fit's direction set (absent in csvs made before it was recorded).
+    #[serde(default)]
+    pub brdf_log_err: Option<f64>,
+    /// Environment-light FLIP, noise-free quadrature render (`ENV_SIZE` px, `examples/sphere-sky.toml`).
+    #[serde(default)]
+    pub env_flip: Option<f64>,
 }
 
-fn rows_of(material: &str, strategy: &str, levels: &[LevelAssessment], uniform: &[usize]) -> Vec<LoopRow> {
+/// Side (px) of the environment render the report scores (the point render's `ESTIMATE_SIZE`).
+pub const ENV_SIZE: usize = closed_loop::ESTIMATE_SIZE;
+
+/// Instrument minutes the real-materials goal allows (issue 25).
+pub const GOAL_MINUTES: f64 = 10.0;
+
+/// A level's assessment with the report's own scores of its reconstruction (log_err, env FLIP).
+type Scored = (LevelAssessment, f64, f64);
+
+fn rows_of(material: &str, strategy: &str, levels: &[Scored], uniform: &[usize]) -> Vec<LoopRow> {
     levels
         .iter()
-        .map(|a| LoopRow {
+        .map(|(a, log_err, env_flip)| LoopRow {
             material: material.to_string(),
             strategy: strategy.to_string(),
             level: a.level,
@@ -86,24 +104,34 @@ fn rows_of(material: &str, strategy: &str, levels: &[LevelAssessment], uniform: 
             true_psnr: a.true_psnr,
             half_width: a.half_width,
             coverage: a.coverage,
+            brdf_log_err: Some(*log_err),
+            env_flip: Some(*env_flip),
         })
         .collect()
 }
 
-/// Run the loop (every level, `StopRule::Depth`) on each material for `adaptive` and `uniform`.
+/// Run the loop's assessment at every level (as `closed_loop::run` with `StopRule::Depth`) on each
+/// material for `adaptive` and `uniform`, scoring each level's reconstruction also by
+/// `brdf_log_err` and by environment FLIP under `env_scene` (rendered at `ENV_SIZE`).
 pub fn run_rows(
     materials: &[String],
     instrument: &InstrumentConfig<f64>,
     max_level: usize,
+    mut env_scene: Scene,
     progress: &dyn Fn(&str),
 ) -> Result<Vec<LoopRow>, PlanError> {
     let encoder = Encoder::shipped(ModelKind::Ggx).map_err(|e| PlanError::Invalid(e.to_string()))?;
+    env_scene.camera.width = ENV_SIZE;
+    env_scene.camera.height = ENV_SIZE;
+    let mut scorer = Scorer::new(ENV_SIZE)?.with_env(env_scene);
+    let no_env = || PlanError::Invalid("no environment scene".into());
     let mut rows = Vec::new();
     for spec in materials {
         let truth = parse_material(spec)?;
+        let truth_env = scorer.render_env(parse_material(spec)?, spec).ok_or_else(no_env)?;
         let (_, photo) = capture_photo(spec)?;
         let (estimate, _) = photo_estimate(&photo, &encoder)?;
-        let mut per = Vec::new();
+        let mut per: Vec<Vec<Scored>> = Vec::new();
         for strategy in [Strategy::Auto, Strategy::Uniform] {
             let config = PlanConfig {
                 strategy,
@@ -112,28 +140,30 @@ pub fn run_rows(
             };
             let plan = Planner::new(*instrument, estimate.clone())?.plan(&config)?;
             let values = plan.measure(truth.as_ref());
-            let closed = closed_loop::run::<PlanError>(
-                &plan,
-                &StopRule::Depth,
-                Some(spec),
-                &mut |l| Ok(values[..l.cumulative_directions].to_vec()),
-                &mut |_| {},
-            )?;
-            per.push(closed.levels);
+            let mut assessor = Assessor::new(Some(spec))?;
+            let mut levels = Vec::new();
+            for summary in &plan.levels {
+                let (a, rec) = assessor.assess(&plan, summary, &values[..summary.cumulative_directions])?;
+                let log_err = scorer.log_err(truth.as_ref(), &rec);
+                let env = scorer.render_env(Box::new(rec), spec).ok_or_else(no_env)?;
+                levels.push((a, log_err, score(&truth_env, &env)?.flip));
+            }
+            per.push(levels);
         }
-        let uniform: Vec<usize> = per[1].iter().map(|a| a.directions).collect();
+        let uniform: Vec<usize> = per[1].iter().map(|a| a.0.directions).collect();
         rows.extend(rows_of(spec, "adaptive", &per[0], &uniform));
         rows.extend(rows_of(spec, "uniform", &per[1], &uniform));
-        progress(&format!(
-            "{spec}: adaptive true FLIP {:?}, estimated {:?}",
-            per[0]
+        let line = |levels: &[Scored]| {
+            levels
                 .iter()
-                .map(|a| a.true_flip.unwrap_or(f64::NAN))
-                .collect::<Vec<_>>(),
-            per[0]
-                .iter()
-                .map(|a| a.est_flip.map_or(f64::NAN, |e| e.0))
+                .map(|(a, _, env)| format!("{:.4}/{env:.4}", a.true_flip.unwrap_or(f64::NAN)))
                 .collect::<Vec<_>>()
+                .join(" ")
+        };
+        progress(&format!(
+            "{spec}: point/env FLIP adaptive {}, uniform {}",
+            line(&per[0]),
+            line(&per[1])
         ));
     }
     Ok(rows)
@@ -250,76 +280,187 @@ pub fn summary(rows: &[LoopRow], title: &str, regenerate: &str) -> String {
             quantile(ratios.clone(), 1.0)
         );
     }
+    equal_directions(&mut md, rows, &materials);
+    monotonicity(&mut md, rows, &materials);
+    within_goal_minutes(&mut md, rows, &materials);
+    per_level_table(&mut md, rows);
+    md
+}
+
+/// One error metric of a row.
+type Metric = fn(&LoopRow) -> Option<f64>;
+
+/// The three error metrics of a row, by name.
+const METRICS: [(&str, Metric); 3] = [
+    ("point FLIP", |r| r.true_flip),
+    ("env FLIP", |r| r.env_flip),
+    ("brdf_log_err", |r| r.brdf_log_err),
+];
+
+fn fmt_opt(v: Option<f64>) -> String {
+    v.map_or("-".into(), |v| format!("{v:.4}"))
+}
+
+/// The row of `material`, `strategy`, `level`.
+fn row_of<'a>(rows: &'a [LoopRow], material: &str, strategy: &str, level: usize) -> Option<&'a LoopRow> {
+    rows.iter()
+        .find(|r| r.material == material && r.strategy == strategy && r.level == level)
+}
+
+/// Per level and metric: geometric mean over materials of closed loop / uniform, and the worst material.
+fn equal_directions(md: &mut String, rows: &[LoopRow], materials: &[&str]) {
     let _ = writeln!(
         md,
-        "\n## Equal directions: closed loop / uniform (true point FLIP, geometric mean over materials)\n"
+        "\n## Equal directions: closed loop / uniform (geometric mean over materials; worst material)\n\n\
+         Goal (issue 25): geometric mean <= 1.0 on every metric at every level, no material above 1.25.\n"
     );
     let _ = writeln!(
         md,
-        "| level | ratio | worst material ratio | adaptive directions <= uniform |\n|---|---|---|---|"
+        "| level | point FLIP | worst | env FLIP | worst | brdf_log_err | worst | adaptive directions <= uniform |\n|---|---|---|---|---|---|---|---|"
     );
     let max_level = rows.iter().map(|r| r.level).max().unwrap_or(0);
     for level in 1..=max_level {
-        let pairs: Vec<(f64, bool)> = materials
+        let mut cells = Vec::new();
+        for (_, metric) in METRICS {
+            let ratios: Vec<f64> = materials
+                .iter()
+                .filter_map(|m| {
+                    let (a, u) = (row_of(rows, m, "adaptive", level)?, row_of(rows, m, "uniform", level)?);
+                    Some(metric(a)? / metric(u)?.max(1e-9))
+                })
+                .collect();
+            cells.push(format!("{:.3} | {:.3}", geomean(&ratios), quantile(ratios, 1.0)));
+        }
+        let equal = materials
             .iter()
-            .filter_map(|m| {
-                let get = |s: &str| {
-                    rows.iter()
-                        .find(|r| r.material == *m && r.strategy == s && r.level == level)
-                };
-                let (a, u) = (get("adaptive")?, get("uniform")?);
-                Some((
-                    a.true_flip? / u.true_flip?.max(1e-9),
-                    a.directions <= a.uniform_directions,
-                ))
-            })
-            .collect();
-        let ratios: Vec<f64> = pairs.iter().map(|p| p.0).collect();
-        let _ = writeln!(
-            md,
-            "| {level} | {:.3} | {:.3} | {} |",
-            geomean(&ratios),
-            quantile(ratios.clone(), 1.0),
-            pairs.iter().all(|p| p.1)
-        );
+            .all(|m| row_of(rows, m, "adaptive", level).is_none_or(|a| a.directions <= a.uniform_directions));
+        let _ = writeln!(md, "| {level} | {} | {equal} |", cells.join(" | "));
     }
-    let mut worst_step = (1.0f64, String::new());
-    for m in &materials {
-        let levels: Vec<&LoopRow> = adaptive.iter().copied().filter(|r| r.material == *m).collect();
-        for w in levels.windows(2) {
-            if let (Some(a), Some(b)) = (w[0].true_flip, w[1].true_flip) {
-                if b / a > worst_step.0 {
-                    worst_step = (b / a, format!("{m} level {}", w[1].level));
+}
+
+/// Per strategy and metric: the largest level-to-level error ratio over materials, and how many
+/// steps exceed the goal's 1.05.
+fn monotonicity(md: &mut String, rows: &[LoopRow], materials: &[&str]) {
+    let _ = writeln!(
+        md,
+        "\n## Monotonicity: error of level L / level L-1 (goal <= 1.05 on every material)\n\n\
+         | strategy | metric | largest ratio | where | steps above 1.05 |\n|---|---|---|---|---|"
+    );
+    for strategy in ["adaptive", "uniform"] {
+        for (name, metric) in METRICS {
+            let (mut worst, mut at, mut above, mut steps) = (0.0f64, String::new(), 0, 0);
+            for m in materials {
+                let levels: Vec<&LoopRow> = rows
+                    .iter()
+                    .filter(|r| r.material == *m && r.strategy == strategy)
+                    .collect();
+                for w in levels.windows(2) {
+                    if let (Some(a), Some(b)) = (metric(w[0]), metric(w[1])) {
+                        let r = b / a.max(1e-12);
+                        steps += 1;
+                        above += usize::from(r > 1.05);
+                        if r > worst {
+                            (worst, at) = (r, format!("{} level {}", short_name(m), w[1].level));
+                        }
+                    }
                 }
+            }
+            let _ = writeln!(md, "| {strategy} | {name} | {worst:.3} | {at} | {above} of {steps} |");
+        }
+    }
+}
+
+/// A material spec without its directory (`rgl:../x/y.bsdf` -> `y.bsdf`).
+fn short_name(spec: &str) -> &str {
+    spec.rsplit(['/', ':']).next().unwrap_or(spec)
+}
+
+/// Per material: the deepest level within `GOAL_MINUTES` of instrument time, both strategies.
+fn within_goal_minutes(md: &mut String, rows: &[LoopRow], materials: &[&str]) {
+    let _ = writeln!(
+        md,
+        "\n## Within {GOAL_MINUTES} min of instrument time (deepest level that fits)\n\n\
+         Goal on the real materials (issue 25): point FLIP <= 0.01 and env FLIP <= 0.02.\n\n\
+         | material | strategy | level | directions | min | point FLIP | env FLIP | brdf_log_err |\n|---|---|---|---|---|---|---|---|"
+    );
+    for m in materials {
+        for strategy in ["adaptive", "uniform"] {
+            let best = rows
+                .iter()
+                .filter(|r| r.material == *m && r.strategy == strategy && r.minutes <= GOAL_MINUTES)
+                .max_by_key(|r| r.level);
+            if let Some(r) = best {
+                let _ = writeln!(
+                    md,
+                    "| {} | {strategy} | {} | {} | {:.1} | {} | {} | {} |",
+                    short_name(m),
+                    r.level,
+                    r.directions,
+                    r.minutes,
+                    fmt_opt(r.true_flip),
+                    fmt_opt(r.env_flip),
+                    fmt_opt(r.brdf_log_err)
+                );
             }
         }
     }
+}
+
+/// Every material, strategy and level.
+fn per_level_table(md: &mut String, rows: &[LoopRow]) {
     let _ = writeln!(
         md,
-        "\nMonotonicity (adaptive, true point FLIP): largest level-to-level ratio {:.3}{}.",
-        worst_step.0,
-        if worst_step.1.is_empty() {
-            String::new()
-        } else {
-            format!(" ({})", worst_step.1)
-        }
+        "\n## Per material and level\n\n\
+         | material | strategy | level | directions | min | point FLIP | env FLIP | brdf_log_err | estimated FLIP [90%] |\n|---|---|---|---|---|---|---|---|---|"
     );
-    md
+    for r in rows {
+        let est = match (r.est_flip, r.est_lo, r.est_hi) {
+            (Some(e), Some(lo), Some(hi)) => format!("{e:.4} [{lo:.4}, {hi:.4}]"),
+            _ => "-".into(),
+        };
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {:.1} | {} | {} | {} | {est} |",
+            short_name(&r.material),
+            r.strategy,
+            r.level,
+            r.directions,
+            r.minutes,
+            fmt_opt(r.true_flip),
+            fmt_opt(r.env_flip),
+            fmt_opt(r.brdf_log_err)
+        );
+    }
+}
+
+/// Where the report's rows come from.
+pub enum RowSource<'a> {
+    /// Simulate every level (`run_rows`).
+    Simulate {
+        materials: &'a [String],
+        instrument: &'a InstrumentConfig<f64>,
+        max_level: usize,
+        env_scene: Box<Scene>,
+    },
+    /// An earlier run's `closed-loop.csv`.
+    Csv(&'a Path),
 }
 
 /// Run the report into `dir` (`closed-loop.csv`, `closed-loop.md`); returns the markdown.
 pub fn run(
     preset: LoopPreset,
-    materials: &[String],
-    instrument: &InstrumentConfig<f64>,
-    max_level: usize,
-    from_csv: Option<&Path>,
+    source: RowSource<'_>,
     dir: &Path,
     progress: &dyn Fn(&str),
 ) -> Result<String, PlanError> {
-    let rows = match from_csv {
-        Some(path) => read_rows(path)?,
-        None => run_rows(materials, instrument, max_level, progress)?,
+    let rows = match source {
+        RowSource::Csv(path) => read_rows(path)?,
+        RowSource::Simulate {
+            materials,
+            instrument,
+            max_level,
+            env_scene,
+        } => run_rows(materials, instrument, max_level, *env_scene, progress)?,
     };
     std::fs::create_dir_all(dir).map_err(|e| PlanError::Invalid(format!("{}: {e}", dir.display())))?;
     write(dir, "closed-loop.csv", &csv(&rows)?)?;
@@ -331,4 +472,69 @@ pub fn run(
     );
     write(dir, "closed-loop.md", md.as_bytes())?;
     Ok(md)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(material: &str, strategy: &str, level: usize, error: f64) -> LoopRow {
+        LoopRow {
+            material: material.into(),
+            strategy: strategy.into(),
+            level,
+            directions: 10 * level,
+            uniform_directions: 10 * level,
+            minutes: 6.0 * level as f64,
+            change_flip: None,
+            est_flip: None,
+            est_lo: None,
+            est_hi: None,
+            true_flip: Some(error),
+            true_psnr: None,
+            half_width: None,
+            coverage: None,
+            brdf_log_err: Some(2.0 * error),
+            env_flip: Some(4.0 * error),
+        }
+    }
+
+    /// The equal-directions ratios are geometric means over materials with the worst beside them,
+    /// on all three metrics; a level whose error grows is caught; the 10-minute table takes level 1.
+    #[test]
+    fn summary_reports_ratios_monotonicity_and_the_goal_minutes() {
+        let rows = vec![
+            row("a", "adaptive", 1, 0.02),
+            row("a", "adaptive", 2, 0.03),
+            row("a", "uniform", 1, 0.01),
+            row("a", "uniform", 2, 0.01),
+            row("b", "adaptive", 1, 0.01),
+            row("b", "adaptive", 2, 0.005),
+            row("b", "uniform", 1, 0.02),
+            row("b", "uniform", 2, 0.01),
+        ];
+        let md = summary(&rows, "test", "cmd");
+        // Level 1: ratios 2 and 0.5, geomean 1, worst 2 (the same on every metric).
+        assert!(
+            md.contains("| 1 | 1.000 | 2.000 | 1.000 | 2.000 | 1.000 | 2.000 | true |"),
+            "{md}"
+        );
+        // Level 2: 3 and 0.5.
+        assert!(
+            md.contains("| 2 | 1.225 | 3.000 | 1.225 | 3.000 | 1.225 | 3.000 | true |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| adaptive | point FLIP | 1.500 | a level 2 | 1 of 2 |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| uniform | env FLIP | 1.000 | a level 2 | 0 of 2 |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| a | adaptive | 1 | 10 | 6.0 | 0.0200 | 0.0800 | 0.0400 |"),
+            "{md}"
+        );
+    }
 }

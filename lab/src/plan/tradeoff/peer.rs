@@ -4,7 +4,7 @@
 //! measured, reconstructed and scored exactly as every other strategy. Each set is ordered and
 //! timed for motion as a plan is (`plan::order`).
 
-use super::{TradeRow, TradeoffConfig};
+use super::{TradeRow, TradeStrategy, TradeoffConfig};
 use crate::plan::nielsen::{self, basis::Basis, select, Design, RIDGE};
 use crate::plan::predict::{log_err_over, score, Scorer};
 use crate::plan::{ggx_estimate, PlanConfig, PlanError, Planner, Strategy};
@@ -210,6 +210,7 @@ pub fn markdown(cfg: &TradeoffConfig, rows: &[TradeRow]) -> String {
     levels.sort_unstable();
     levels.dedup();
     for (level, dirs) in levels {
+        let mut means: Vec<(String, [f64; 4])> = Vec::new();
         for st in &cfg.strategies {
             let name = st.to_string();
             let mine: Vec<&TradeRow> = rows
@@ -220,14 +221,31 @@ pub fn markdown(cfg: &TradeoffConfig, rows: &[TradeRow]) -> String {
                 continue;
             }
             let n = mine.iter().map(|r| r.directions).max().unwrap_or(0);
-            let _ = writeln!(
-                s,
-                "| {level} | {n} | {name} | {:.5} | {:.5} | {:.4} | {:.4} | {:.1} |",
+            let m = [
                 gmean(&mine, |r| r.brdf_log_err),
                 gmean(&mine, |r| r.liu_log_err),
                 gmean(&mine, |r| r.flip),
                 gmean(&mine, |r| r.flip_env),
+            ];
+            let _ = writeln!(
+                s,
+                "| {level} | {n} | {name} | {:.5} | {:.5} | {:.4} | {:.4} | {:.1} |",
+                m[0],
+                m[1],
+                m[2],
+                m[3],
                 gmean(&mine, |r| r.gonio_seconds / 60.0)
+            );
+            means.push((name, m));
+        }
+        // Below 1: the product's default beats the peer at this count.
+        let of = |name: &str| means.iter().find(|(n, _)| n == name).map(|(_, m)| *m);
+        if let (Some(a), Some(p)) = (of(&TradeStrategy::Adaptive.to_string()), of(NAME)) {
+            let r: Vec<f64> = a.iter().zip(&p).map(|(a, p)| a / p).collect();
+            let _ = writeln!(
+                s,
+                "| {level} | | adaptive / {NAME} | {:.2} | {:.2} | {:.2} | {:.2} | |",
+                r[0], r[1], r[2], r[3]
             );
         }
     }
