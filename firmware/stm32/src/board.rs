@@ -177,14 +177,6 @@ pub fn start_step_timer(tim2: embassy_stm32::Peri<'static, embassy_stm32::periph
     }
 }
 
-/// STEP pins low and every driver disabled (ENABLE is active low: PB8, PB9, PB4 on GPIOB, PA15
-/// on GPIOA), one BSRR write per port: what a panic or a HardFault does before the reset.
-pub fn drivers_off() {
-    const GPIOB_OFF: u32 = (1 << 4 | 1 << 8 | 1 << 9) | (1 << 0 | 1 << 1 | 1 << 6 | 1 << 7) << 16;
-    pac::GPIOB.bsrr().write_value(pac::gpio::regs::Bsrr(GPIOB_OFF));
-    pac::GPIOA.bsrr().write_value(pac::gpio::regs::Bsrr(1 << 15));
-}
-
 /// One compare channel per axis (CC1..CC4 = light, detector, tilt, azimuth): each event is a
 /// rise or a fall of that axis's STEP pin (`StepQueue::on_compare`), then the channel's next
 /// compare, or the channel is disarmed when its ring ran out. One BSRR write per event.
