@@ -143,7 +143,7 @@ pub fn replan(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use gonio::brdf::parse_material;
+    use gonio::brdf::{parse_material, Material};
     use gonio::plan::{ggx_estimate, square_grids, Strategy};
     use gonio::reconstruct::reconstruct;
 
