@@ -18,7 +18,7 @@ use super::predict::{score, Scorer};
 use super::{LevelSummary, Plan, PlanError};
 use crate::brdf::fit::fit_directions;
 use crate::brdf::Material;
-use crate::reconstruct::{reconstruct, ReconstructError, Reconstruction, RATIO_FLOOR};
+use crate::reconstruct::{reconstruct, Levels, ReconstructError, Reconstruction, RATIO_FLOOR};
 use crate::render::Image;
 use glam::DVec3;
 
@@ -173,14 +173,18 @@ impl Assessor {
         })
     }
 
-    /// Reconstruct `level` from `values` (indexed like the plan) and assess it.
+    /// Reconstruct `level` from `values` (indexed like the measurements of `levels`: a plan, or
+    /// the lab's levels planned from measurements) and assess it.
     pub fn assess(
         &mut self,
-        plan: &Plan,
+        levels: &dyn Levels,
         level: &LevelSummary,
         values: &[DVec3],
     ) -> Result<(LevelAssessment, Reconstruction), ReconstructError> {
-        let rec = reconstruct(plan, level.level, values)?;
+        let rec = reconstruct(levels, level.level, values)?;
+        let nodes = levels
+            .level_nodes(level.level)
+            .ok_or(ReconstructError::NoLevel(level.level))?;
         let image = self.scorer.render(Box::new(rec.clone()));
         let mut a = LevelAssessment {
             level: level.level,
@@ -199,10 +203,10 @@ impl Assessor {
         let mut half_width = None;
         if let Some((prev, prev_image, _)) = &self.previous {
             // Held-out residuals: level L's new directions against level L-1's reconstruction.
-            let new = plan.directions.iter().enumerate().skip(level.first).take(level.count);
+            let new = nodes.measured.iter().enumerate().skip(level.first).take(level.count);
             let residuals = new
-                .flat_map(|(d, p)| {
-                    let r = log_space(values[d]) - log_space(prev.eval(p.wi, p.wo));
+                .flat_map(|(d, &(_, wi, wo))| {
+                    let r = log_space(values[d]) - log_space(prev.eval(wi, wo));
                     [r.x.abs(), r.y.abs(), r.z.abs()]
                 })
                 .filter(|r| r.is_finite())

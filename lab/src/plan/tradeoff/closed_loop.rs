@@ -8,14 +8,15 @@
 //! the equal-directions ratios closed loop / uniform per level on point FLIP, environment FLIP
 //! (the noise-free quadrature render, `render::quadrature`) and `brdf_log_err`, and monotonicity.
 
-use super::{capture_photo, photo_estimate, HELDOUT_MATERIALS, REAL_MATERIALS, TRAINING_MATERIALS};
+use super::{capture_photo, photo_estimate, reseed, HELDOUT_MATERIALS, REAL_MATERIALS, TRAINING_MATERIALS};
 use crate::plan::report::{csv, write};
 use gonio::brdf::parse_material;
 use gonio::encoder::infer::Encoder;
 use gonio::encoder::ModelKind;
 use gonio::plan::closed_loop::{self, Assessor, LevelAssessment};
 use gonio::plan::predict::{score, Scorer};
-use gonio::plan::{square_grids, PlanConfig, PlanError, Planner, Strategy};
+use gonio::plan::{square_grids, LevelSummary, PlanConfig, PlanError, Planner, Strategy};
+use gonio::reconstruct::Levels;
 use gonio::render::Scene;
 use gonio_shared::instrument::InstrumentConfig;
 use std::fmt::Write as _;
@@ -125,6 +126,7 @@ pub fn run_rows(
         let (_, photo) = capture_photo(spec)?;
         let (estimate, _) = photo_estimate(&photo, &encoder)?;
         let mut per: Vec<Vec<Scored>> = Vec::new();
+        let mut photo_plan = None;
         for strategy in [Strategy::Auto, Strategy::Uniform] {
             let config = PlanConfig {
                 strategy,
@@ -133,19 +135,43 @@ pub fn run_rows(
             };
             let plan = Planner::new(*instrument, estimate.clone())?.plan(&config)?;
             let values = plan.measure(truth.as_ref());
-            let mut assessor = Assessor::new(Some(spec))?;
-            let mut levels = Vec::new();
-            for summary in &plan.levels {
-                let (a, rec) = assessor.assess(&plan, summary, &values[..summary.cumulative_directions])?;
-                let log_err = scorer.log_err(truth.as_ref(), &rec);
-                let env = scorer.render_env(Box::new(rec), spec).ok_or_else(no_env)?;
-                levels.push((a, log_err, score(&truth_env, &env)?.flip));
+            per.push(assess_levels(
+                &plan,
+                &plan.levels,
+                &values,
+                spec,
+                &mut scorer,
+                &truth_env,
+            )?);
+            if strategy == Strategy::Auto {
+                photo_plan = Some((plan, config));
             }
-            per.push(levels);
         }
         let uniform: Vec<usize> = per[1].iter().map(|a| a.0.directions).collect();
         rows.extend(rows_of(spec, "adaptive", &per[0], &uniform));
         rows.extend(rows_of(spec, "uniform", &per[1], &uniform));
+        // Levels 2.. planned from level 1's fit (`reseed`): kept only where every level's count is
+        // within the uniform grid's; otherwise the photo's plan goes on (the rows say which).
+        let (first, config) = photo_plan.ok_or_else(|| PlanError::Invalid("no photo plan".into()))?;
+        let level1 = gonio::reconstruct::reconstruct(&first, 1, &first.measure(truth.as_ref()))?;
+        let next = reseed::replan(instrument, &config, level1.prior())?;
+        let reseeded = next.as_ref().and_then(|next| reseed::Reseeded::new(&first, next));
+        let (label, levels) = match reseeded {
+            Some(r)
+                if r.levels()
+                    .iter()
+                    .zip(&uniform)
+                    .all(|(l, u)| l.cumulative_directions <= *u) =>
+            {
+                let values: Vec<_> = r.pairs().iter().map(|&(wi, wo)| truth.eval(wi, wo)).collect();
+                (
+                    "reseed",
+                    assess_levels(&r, &r.levels(), &values, spec, &mut scorer, &truth_env)?,
+                )
+            }
+            _ => ("reseed (photo plan)", per[0].clone()),
+        };
+        rows.extend(rows_of(spec, "reseed", &levels, &uniform));
         let line = |levels: &[Scored]| {
             levels
                 .iter()
@@ -154,12 +180,37 @@ pub fn run_rows(
                 .join(" ")
         };
         progress(&format!(
-            "{spec}: point/env FLIP adaptive {}, uniform {}",
+            "{spec}: point/env FLIP adaptive {}, uniform {}, {label} {}",
             line(&per[0]),
-            line(&per[1])
+            line(&per[1]),
+            line(&levels)
         ));
     }
     Ok(rows)
+}
+
+/// Assess every level of `levels` (as `closed_loop::run` with `StopRule::Depth`), scoring each
+/// reconstruction also by `brdf_log_err` and by environment FLIP against `truth_env`.
+fn assess_levels(
+    levels: &dyn Levels,
+    summaries: &[LevelSummary],
+    values: &[glam::DVec3],
+    spec: &str,
+    scorer: &mut Scorer,
+    truth_env: &gonio::render::Image,
+) -> Result<Vec<Scored>, PlanError> {
+    let truth = parse_material(spec)?;
+    let mut assessor = Assessor::new(Some(spec))?;
+    let mut out = Vec::new();
+    for summary in summaries {
+        let (a, rec) = assessor.assess(levels, summary, &values[..summary.cumulative_directions])?;
+        let log_err = scorer.log_err(truth.as_ref(), &rec);
+        let env = scorer
+            .render_env(Box::new(rec), spec)
+            .ok_or_else(|| PlanError::Invalid("no environment scene".into()))?;
+        out.push((a, log_err, score(truth_env, &env)?.flip));
+    }
+    Ok(out)
 }
 
 /// The `q` quantile (0..1) of `v` (nearest rank); NaN for none.
@@ -273,7 +324,16 @@ pub fn summary(rows: &[LoopRow], title: &str, regenerate: &str) -> String {
             quantile(ratios.clone(), 1.0)
         );
     }
-    equal_directions(&mut md, rows, &materials);
+    equal_directions(&mut md, rows, &materials, "adaptive", "closed loop");
+    if rows.iter().any(|r| r.strategy == "reseed") {
+        equal_directions(
+            &mut md,
+            rows,
+            &materials,
+            "reseed",
+            "re-seeded from level 1's fit (lab trial)",
+        );
+    }
     monotonicity(&mut md, rows, &materials);
     within_goal_minutes(&mut md, rows, &materials);
     per_level_table(&mut md, rows);
@@ -301,10 +361,10 @@ fn row_of<'a>(rows: &'a [LoopRow], material: &str, strategy: &str, level: usize)
 }
 
 /// Per level and metric: geometric mean over materials of closed loop / uniform, and the worst material.
-fn equal_directions(md: &mut String, rows: &[LoopRow], materials: &[&str]) {
+fn equal_directions(md: &mut String, rows: &[LoopRow], materials: &[&str], strategy: &str, title: &str) {
     let _ = writeln!(
         md,
-        "\n## Equal directions: closed loop / uniform (geometric mean over materials; worst material)\n\n\
+        "\n## Equal directions: {title} / uniform (geometric mean over materials; worst material)\n\n\
          Goal (issue 25): geometric mean <= 1.0 on every metric at every level, no material above 1.25.\n"
     );
     let _ = writeln!(
@@ -318,7 +378,7 @@ fn equal_directions(md: &mut String, rows: &[LoopRow], materials: &[&str]) {
             let ratios: Vec<f64> = materials
                 .iter()
                 .filter_map(|m| {
-                    let (a, u) = (row_of(rows, m, "adaptive", level)?, row_of(rows, m, "uniform", level)?);
+                    let (a, u) = (row_of(rows, m, strategy, level)?, row_of(rows, m, "uniform", level)?);
                     Some(metric(a)? / metric(u)?.max(1e-9))
                 })
                 .collect();
@@ -326,7 +386,7 @@ fn equal_directions(md: &mut String, rows: &[LoopRow], materials: &[&str]) {
         }
         let equal = materials
             .iter()
-            .all(|m| row_of(rows, m, "adaptive", level).is_none_or(|a| a.directions <= a.uniform_directions));
+            .all(|m| row_of(rows, m, strategy, level).is_none_or(|a| a.directions <= a.uniform_directions));
         let _ = writeln!(md, "| {level} | {} | {equal} |", cells.join(" | "));
     }
 }
@@ -339,7 +399,7 @@ fn monotonicity(md: &mut String, rows: &[LoopRow], materials: &[&str]) {
         "\n## Monotonicity: error of level L / level L-1 (goal <= 1.05 on every material)\n\n\
          | strategy | metric | largest ratio | where | steps above 1.05 |\n|---|---|---|---|---|"
     );
-    for strategy in ["adaptive", "uniform"] {
+    for strategy in ["adaptive", "uniform", "reseed"] {
         for (name, metric) in METRICS {
             let (mut worst, mut at, mut above, mut steps) = (0.0f64, String::new(), 0, 0);
             for m in materials {

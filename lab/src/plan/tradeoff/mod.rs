@@ -36,6 +36,7 @@ mod liu;
 mod markdown;
 mod peer;
 mod presets;
+pub mod reseed;
 
 use markdown::*;
 pub use presets::*;
