@@ -118,14 +118,18 @@ impl Device {
         }
     }
 
+    /// Read the answer to the command sent as `seq`: until `want` matches, skipping that
+    /// command's `Ack` and harmless frames.
+    fn answer_to(&mut self, what: &str, seq: u16, want: impl Fn(&DeviceMsg) -> bool) -> DeviceMsg {
+        self.expect(what, want, |m| {
+            harmless(m) || matches!(m, DeviceMsg::Ack { seq: s } if *s == seq)
+        })
+    }
+
     /// The device's `Status`.
     fn status(&mut self) -> gonio_shared::msg::Status {
         let seq = self.send(&HostMsg::GetStatus);
-        match self.expect(
-            "status",
-            |m| matches!(m, DeviceMsg::Status(_)),
-            |m| matches!(m, DeviceMsg::Ack { seq: s } if *s == seq) || harmless(m),
-        ) {
+        match self.answer_to("status", seq, |m| matches!(m, DeviceMsg::Status(_))) {
             DeviceMsg::Status(s) => s,
             _ => unreachable!(),
         }
@@ -292,11 +296,7 @@ fn qemu_refusals() {
     let mut fast = good;
     fast.axes[Axis::Light.index()].max_speed = 1.0e3; // rad/s: ~318 k steps/s at 2000 steps per turn
     let seq = dev.send(&HostMsg::Configure(fast));
-    let refused = dev.expect(
-        "impossible speeds",
-        |m| matches!(m, DeviceMsg::Refused { .. }),
-        |m| harmless(m) || matches!(m, DeviceMsg::Ack { seq: s } if *s == seq),
-    );
+    let refused = dev.answer_to("impossible speeds", seq, |m| matches!(m, DeviceMsg::Refused { .. }));
     assert_eq!(
         refused,
         DeviceMsg::Refused {
@@ -325,11 +325,7 @@ fn qemu_refusals() {
         first_index: 0,
         directions: [below].into_iter().collect(),
     }));
-    let fault = dev.expect(
-        "unreachable pose",
-        |m| matches!(m, DeviceMsg::Fault(_)),
-        |m| harmless(m) || matches!(m, DeviceMsg::Ack { seq: s } if *s == seq),
-    );
+    let fault = dev.answer_to("unreachable pose", seq, |m| matches!(m, DeviceMsg::Fault(_)));
     assert_eq!(
         fault,
         DeviceMsg::Fault(Fault::Unreachable {
@@ -352,11 +348,9 @@ fn qemu_refusals() {
         "the device's answer to another version"
     );
     let seq = dev.send(&HostMsg::Home);
-    let refused = dev.expect(
-        "command after a mismatched Hello",
-        |m| matches!(m, DeviceMsg::Refused { .. }),
-        |m| harmless(m) || matches!(m, DeviceMsg::Ack { seq: s } if *s == seq),
-    );
+    let refused = dev.answer_to("command after a mismatched Hello", seq, |m| {
+        matches!(m, DeviceMsg::Refused { .. })
+    });
     assert_eq!(
         refused,
         DeviceMsg::Refused {

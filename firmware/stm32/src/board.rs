@@ -14,6 +14,7 @@
 //!   conversions once the exposure time has elapsed (see [`BoardIo::poll_readout`]). The ADS131M04
 //!   on SPI1 is the planned precision option (README).
 
+use crate::exposure::ExposureTimer;
 use embassy_stm32::adc::{Adc, AnyAdcChannel, SampleTime};
 use embassy_stm32::exti::ExtiInput;
 use embassy_stm32::gpio::Output;
@@ -279,18 +280,12 @@ pub struct AdcDetector {
     pub channels: [AnyAdcChannel<'static, ADC1>; 4],
 }
 
-#[derive(Clone, Copy)]
-struct Exposure {
-    done_us: u64,
-    exposure_us: u32,
-}
-
 /// The board I/O besides STEP/DIR (which `QueuedHal` queues for TIM2): switch levels, the detector, the clock.
 pub struct BoardIo {
     /// Home / limit switch per axis, closed = low, each on its own EXTI line.
     limit: [ExtiInput<'static, Blocking>; 4],
     detector: AdcDetector,
-    exposure: Option<Exposure>,
+    exposure: ExposureTimer,
     #[allow(dead_code, reason = "kept only so the pins stay configured and driven")]
     pins: AxisPins,
 }
@@ -300,7 +295,7 @@ impl BoardIo {
         Self {
             limit,
             detector,
-            exposure: None,
+            exposure: ExposureTimer::new(),
             pins,
         }
     }
@@ -339,20 +334,15 @@ impl Switches for BoardIo {
 
 impl Detector for BoardIo {
     fn start_exposure(&mut self, exposure_us: u32) {
-        self.exposure = Some(Exposure {
-            done_us: self.now_us().saturating_add(u64::from(exposure_us)),
-            exposure_us,
-        });
+        let now = self.now_us();
+        self.exposure.start(now, exposure_us);
     }
 
     /// `None` until the exposure time has passed; then the blocking ADC reads (4 channels x
     /// `ADC_OVERSAMPLE` conversions, about 0.3 ms) and the readout.
     fn poll_readout(&mut self) -> Option<Readout> {
-        let exposure = self.exposure?;
-        if self.now_us() < exposure.done_us {
-            return None;
-        }
-        self.exposure = None;
-        Some(self.read_detector(exposure.exposure_us))
+        let now = self.now_us();
+        let exposure_us = self.exposure.take_done(now)?;
+        Some(self.read_detector(exposure_us))
     }
 }

@@ -21,6 +21,7 @@ compile_error!("build the board (default features) or `--no-default-features --f
 
 #[cfg(feature = "board")]
 mod board;
+mod exposure;
 mod host_loop;
 #[cfg(feature = "qemu")]
 mod qemu;

@@ -13,6 +13,7 @@
 //! - **Detector**: a stand-in sample whose counts are a fixed function of the axis positions and
 //!   the exposure (`stand_in_counts`): the same readings every run.
 
+use crate::exposure::ExposureTimer;
 use core::cell::{Cell, RefCell};
 use core::task::Waker;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
@@ -255,21 +256,17 @@ fn stand_in_counts(pos: [i32; 4], exposure_us: u32) -> Readout {
     readout
 }
 
-#[derive(Clone, Copy)]
-struct Exposure {
-    done_us: u64,
-    exposure_us: u32,
-}
-
 /// The board I/O besides STEP/DIR (which `QueuedHal` queues for SysTick): the stand-in switches
 /// and detector, the clock.
 pub struct StandIn {
-    exposure: Option<Exposure>,
+    exposure: ExposureTimer,
 }
 
 impl StandIn {
     pub const fn new() -> Self {
-        Self { exposure: None }
+        Self {
+            exposure: ExposureTimer::new(),
+        }
     }
 }
 
@@ -288,19 +285,14 @@ impl Switches for StandIn {
 
 impl Detector for StandIn {
     fn start_exposure(&mut self, exposure_us: u32) {
-        self.exposure = Some(Exposure {
-            done_us: self.now_us().saturating_add(u64::from(exposure_us)),
-            exposure_us,
-        });
+        let now = self.now_us();
+        self.exposure.start(now, exposure_us);
     }
 
     /// `None` until the exposure time has passed; then the stand-in's readout at the pose reached.
     fn poll_readout(&mut self) -> Option<Readout> {
-        let exposure = self.exposure?;
-        if self.now_us() < exposure.done_us {
-            return None;
-        }
-        self.exposure = None;
-        Some(stand_in_counts(positions(), exposure.exposure_us))
+        let now = self.now_us();
+        let exposure_us = self.exposure.take_done(now)?;
+        Some(stand_in_counts(positions(), exposure_us))
     }
 }
