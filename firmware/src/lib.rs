@@ -16,6 +16,8 @@
 //! - [`measurements`]: readings kept until acknowledged;
 //! - [`homing`]: switch positions and homing moves;
 //! - [`capacity`]: every buffer size, in one place;
+//! - [`pin_map`]: the board's stepper-driver pins and the GPIO words the step and fault paths write;
+//! - [`watchdog`]: when the loop feeds the independent watchdog;
 //! - [`device`]: link + controller + outbox behind one value; dispatches what the link yields.
 #![no_std]
 #![forbid(unsafe_code)]
@@ -28,11 +30,13 @@ pub mod homing;
 pub mod link;
 pub mod measurements;
 pub mod outbox;
+pub mod pin_map;
 pub mod plan;
 pub mod segment;
 pub mod step_queue;
 pub mod stepper;
 pub mod timed;
+pub mod watchdog;
 
 pub use device::Device;
 pub use hal::{Clock, Detector, Hal, Readout, Steppers, Switches};

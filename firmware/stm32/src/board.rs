@@ -2,7 +2,7 @@
 //! way, what a closed switch means) is the logic crate's (`gonio_firmware::timed`,
 //! `gonio_firmware::step_queue`).
 //!
-//! - STEP/DIR per axis on GPIOB (PB0, PB1, PB6, PB7 / PB12..PB15), so one write of GPIOB's BSRR
+//! - STEP/DIR/ENABLE per axis on GPIOB (`gonio_firmware::pin_map`), so one write of GPIOB's BSRR
 //!   applies everything the step timer decided at an instant; ENABLE driven active (low) from boot.
 //! - TIM2 (32-bit, 1 MHz, counting the same microseconds as embassy-time) plays the `StepQueue`:
 //!   one compare channel per axis (CC1..CC4), whose interrupt makes that axis's STEP rise or fall
@@ -23,6 +23,7 @@ use embassy_stm32::mode::Blocking;
 use embassy_stm32::pac;
 use embassy_stm32::peripherals::ADC1;
 use embassy_time::Instant;
+use gonio_firmware::pin_map::{dir_bits, step_bits, DIR_BIT, STEP_BIT};
 use gonio_firmware::step_queue::{reached, Edge, Pins, StepQueue, PULSE_TICKS};
 use gonio_firmware::timed::{tick, SharedQueue};
 use gonio_firmware::{Clock, Detector, Readout, Switches};
@@ -55,21 +56,10 @@ unsafe fn step_queue() -> &'static mut StepQueue {
     unsafe { &mut *core::ptr::addr_of_mut!(STEP_QUEUE) }
 }
 
-/// Axis bits (`1 << Axis::index`) to STEP pin bits: light PB0, detector PB1, tilt PB6, azimuth PB7.
-fn step_pins(axes: u8) -> u32 {
-    let a = u32::from(axes);
-    (a & 0b0011) | ((a & 0b1100) << 4)
-}
-
-/// Axis bits to DIR pin bits: PB12..PB15 in axis order.
-fn dir_pins(axes: u8) -> u32 {
-    u32::from(axes & 0b1111) << 12
-}
-
 /// `Pins` as one GPIOB BSRR word (set bits low half, reset bits high half). Bit arithmetic rather
 /// than a loop over a pin table: this runs in every step interrupt.
 fn bsrr(p: Pins) -> u32 {
-    (step_pins(p.step_high) | dir_pins(p.dir_increasing)) | ((step_pins(p.step_low) | dir_pins(p.dir_decreasing)) << 16)
+    (step_bits(p.step_high) | dir_bits(p.dir_increasing)) | ((step_bits(p.step_low) | dir_bits(p.dir_decreasing)) << 16)
 }
 
 fn apply(p: Pins) {
@@ -80,10 +70,6 @@ fn apply(p: Pins) {
 
 /// TIM2's compare-interrupt enable and flag bits of the four channels (CC1..CC4 = bits 1..4).
 const CC_BITS: u32 = 0b1_1110;
-
-/// Channel `i`'s STEP and DIR pins as GPIOB BSRR set bits (their reset bits are 16 higher).
-const STEP_PIN: [u32; 4] = [1 << 0, 1 << 1, 1 << 6, 1 << 7];
-const DIR_PIN: [u32; 4] = [1 << 12, 1 << 13, 1 << 14, 1 << 15];
 
 #[inline(always)]
 fn write_bsrr(word: u32) {
@@ -193,7 +179,7 @@ fn TIM2() {
     while pending != 0 {
         let i = pending.trailing_zeros() as usize & 3;
         pending &= pending - 1;
-        let step = STEP_PIN[i];
+        let step = STEP_BIT[i];
         match q.on_compare(i) {
             Edge::Rise(_) => {
                 write_bsrr(step);
@@ -210,9 +196,9 @@ fn TIM2() {
             }
             Edge::FallDir(tick) => {
                 let dir = if q.dir_levels() & (1 << i) != 0 {
-                    DIR_PIN[i]
+                    DIR_BIT[i]
                 } else {
-                    DIR_PIN[i] << 16
+                    DIR_BIT[i] << 16
                 };
                 write_bsrr(step << 16 | dir);
                 if compare_at(i, tick) {

@@ -11,7 +11,7 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::pipe::Pipe;
 use embassy_time::{Instant, Timer};
 use gonio_firmware::timed::{QueuedHal, SharedQueue};
-use gonio_firmware::{Clock, Detector, Device, Switches};
+use gonio_firmware::{watchdog, Clock, Detector, Device, Switches};
 use gonio_shared::msg::{ControllerState, Fault};
 
 /// Bytes taken from the link per read: a full-speed USB bulk packet.
@@ -46,33 +46,31 @@ pub trait Watchdog {
     fn pet(&mut self);
 }
 
-/// The watchdog, fed by the controller loop at most every `FEED_US`, and only while the step queue
-/// is healthy (no overrun: the loop keeps room for what it queues).
+/// The watchdog, fed by the controller loop by the rule of `gonio_firmware::watchdog` (at most every
+/// `FEED_US`, only while the step queue never overran).
 pub struct Feeder<W> {
     wdg: W,
-    fed: Instant,
+    rule: watchdog::Feed,
 }
 
 impl<W: Watchdog> Feeder<W> {
-    pub const FEED_US: u64 = 100_000;
-
     pub fn new(wdg: W) -> Self {
         Self {
             wdg,
-            fed: Instant::now(),
+            rule: watchdog::Feed::new(Instant::now().as_micros()),
         }
     }
 
-    /// Feed it if due and healthy; returns when the loop must come back to feed it again.
-    fn feed<B, Q: SharedQueue>(&mut self, hal: &QueuedHal<B, Q>) -> u64 {
-        let now = Instant::now();
-        if now.as_micros() >= self.fed.as_micros().saturating_add(Self::FEED_US)
-            && hal.queue.with(|q| q.stats().overruns) == 0
-        {
+    /// Feed it if due and healthy; returns when the loop must come back to feed it again (`None`:
+    /// it stopped feeding, the watchdog resets the board).
+    fn feed<B, Q: SharedQueue>(&mut self, hal: &QueuedHal<B, Q>) -> Option<u64> {
+        let (pet, next) = self.rule.poll(Instant::now().as_micros(), || {
+            hal.queue.with(|q| watchdog::healthy(&q.stats()))
+        });
+        if pet {
             self.wdg.pet();
-            self.fed = now;
         }
-        self.fed.as_micros().saturating_add(Self::FEED_US)
+        next
     }
 }
 
@@ -145,7 +143,7 @@ where
         let wake = hal.run(device);
         seen.log_changes(device, &hal);
         staged.pump(device);
-        let wake = Some(watchdog.feed(&hal).min(wake.unwrap_or(u64::MAX)));
+        let wake = [wake, watchdog.feed(&hal)].into_iter().flatten().min();
 
         let rx_idle = rx_start >= rx_end;
         if !rx_idle && staged.pending().is_empty() {

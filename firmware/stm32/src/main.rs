@@ -34,6 +34,7 @@ use defmt_rtt as _;
 #[cfg(feature = "board")]
 use embassy_executor::Spawner;
 use embassy_stm32::pac;
+use gonio_firmware::pin_map;
 
 /// Drivers off (STEP low, ENABLE released), log where, reset. The panic *message* is not
 /// printed: formatting it would link `core::fmt` (docs/firmware.md, "Flash and RAM"); no panic can
@@ -56,13 +57,14 @@ unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
     cortex_m::peripheral::SCB::sys_reset()
 }
 
-/// STEP pins low and every driver disabled (ENABLE is active low: PB8, PB9, PB4 on GPIOB, PA15
-/// on GPIOA), one BSRR write per port: what a panic or a HardFault does before the reset. (QEMU
-/// has no GPIO model: there the writes go nowhere.)
+/// Every STEP pin low and every driver disabled in one GPIOB BSRR write, the word computed from the
+/// pin map and host-tested there (`gonio_firmware::pin_map::DRIVERS_OFF_BSRR`): what a panic or a
+/// HardFault does before the reset. (QEMU has no GPIO model: there the write goes nowhere.)
 pub fn drivers_off() {
-    const GPIOB_OFF: u32 = (1 << 4 | 1 << 8 | 1 << 9) | (1 << 0 | 1 << 1 | 1 << 6 | 1 << 7) << 16;
-    pac::GPIOB.bsrr().write_value(pac::gpio::regs::Bsrr(GPIOB_OFF));
-    pac::GPIOA.bsrr().write_value(pac::gpio::regs::Bsrr(1 << 15));
+    const _: () = assert!(matches!(pin_map::DRIVER_PORT, pin_map::Port::B));
+    pac::GPIOB
+        .bsrr()
+        .write_value(pac::gpio::regs::Bsrr(pin_map::DRIVERS_OFF_BSRR));
 }
 
 #[cfg(feature = "board")]

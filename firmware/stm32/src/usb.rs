@@ -15,17 +15,17 @@ use defmt::info;
 use embassy_executor::Spawner;
 use embassy_stm32::adc::{Adc, AdcChannel};
 use embassy_stm32::exti::{ExtiInput, TriggerEdge};
-use embassy_stm32::gpio::{Level, Output, Pull, Speed};
+use embassy_stm32::gpio::{Level, Output, Pin, Pull, Speed};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::usb::{self, Driver};
 use embassy_stm32::wdg::IndependentWatchdog;
-use embassy_stm32::{bind_interrupts, peripherals, Config};
+use embassy_stm32::{bind_interrupts, peripherals, Config, Peri};
 use embassy_time::Timer;
 use embassy_usb::class::cdc_acm::{CdcAcmClass, Receiver, Sender, State};
 use embassy_usb::driver::EndpointError;
 use embassy_usb::{Builder, UsbDevice};
 use gonio_firmware::timed::QueuedHal;
-use gonio_firmware::Device;
+use gonio_firmware::{pin_map, watchdog, Device};
 use static_cell::{ConstStaticCell, StaticCell};
 
 bind_interrupts!(struct Irqs {
@@ -39,9 +39,6 @@ const USB_PACKET: usize = RX_CHUNK;
 /// pid.codes test VID/PID: fine on the bench, to be replaced by an allocated PID before shipping.
 const USB_VID: u16 = 0x1209;
 const USB_PID: u16 = 0x0001;
-
-/// The independent watchdog's timeout (the controller loop feeds it every `Feeder::FEED_US`).
-const WATCHDOG_US: u32 = 500_000;
 
 /// 25 MHz HSE -> PLL: /25 = 1 MHz, x192 = 192 MHz VCO; P /2 = 96 MHz SYSCLK, Q /4 = 48 MHz USB.
 /// APB1 is capped at 50 MHz on the F411, hence /2 (48 MHz, timers 96 MHz); APB2 runs at 96 MHz.
@@ -77,27 +74,30 @@ pub fn start(spawner: Spawner) {
     // Black Pill user LED, active low: start off.
     let led = Output::new(p.PC13, Level::High, Speed::Low);
 
-    // Steppers (README pin table), indexed by `Axis::index`: light, detector, tilt, azimuth.
-    // STEP idles low and pulses high (driven by the TIM2 interrupt); ENABLE is active low and
-    // driven active from here on.
+    // Steppers (README pin table, `gonio_firmware::pin_map`), indexed by `Axis::index`: light,
+    // detector, tilt, azimuth. STEP idles low and pulses high (driven by the TIM2 interrupt);
+    // ENABLE is driven active from here on.
+    let map = &pin_map::DRIVER_PINS;
+    let (step, dir, enable) = (Speed::Medium, Speed::Medium, Speed::Low);
+    let on = Level::from(!pin_map::ENABLE_ACTIVE_LOW);
     let pins = AxisPins {
         step: [
-            Output::new(p.PB0, Level::Low, Speed::Medium),
-            Output::new(p.PB1, Level::Low, Speed::Medium),
-            Output::new(p.PB6, Level::Low, Speed::Medium),
-            Output::new(p.PB7, Level::Low, Speed::Medium),
+            driver_output(p.PB0, map[0].step, Level::Low, step),
+            driver_output(p.PB1, map[1].step, Level::Low, step),
+            driver_output(p.PB6, map[2].step, Level::Low, step),
+            driver_output(p.PB7, map[3].step, Level::Low, step),
         ],
         dir: [
-            Output::new(p.PB12, Level::Low, Speed::Medium),
-            Output::new(p.PB13, Level::Low, Speed::Medium),
-            Output::new(p.PB14, Level::Low, Speed::Medium),
-            Output::new(p.PB15, Level::Low, Speed::Medium),
+            driver_output(p.PB12, map[0].dir, Level::Low, dir),
+            driver_output(p.PB13, map[1].dir, Level::Low, dir),
+            driver_output(p.PB14, map[2].dir, Level::Low, dir),
+            driver_output(p.PB15, map[3].dir, Level::Low, dir),
         ],
         enable: [
-            Output::new(p.PB8, Level::Low, Speed::Low),
-            Output::new(p.PB9, Level::Low, Speed::Low),
-            Output::new(p.PB4, Level::Low, Speed::Low),
-            Output::new(p.PA15, Level::Low, Speed::Low),
+            driver_output(p.PB8, map[0].enable, on, enable),
+            driver_output(p.PB9, map[1].enable, on, enable),
+            driver_output(p.PB4, map[2].enable, on, enable),
+            driver_output(p.PB10, map[3].enable, on, enable),
         ],
     };
     // Switches to GND, closed = low: a falling edge is a switch closing. Our own EXTI handlers
@@ -166,14 +166,24 @@ pub fn start(spawner: Spawner) {
     spawner.spawn(spawned(usb_task(usb), "usb_task"));
     spawner.spawn(spawned(usb_tx_task(sender), "usb_tx_task"));
     // The independent watchdog: a hung executor, or a controller loop that stops feeding it
-    // (`Feeder::feed`), resets the board within WATCHDOG_US.
-    let mut wdg = IndependentWatchdog::new(p.IWDG, WATCHDOG_US);
+    // (`Feeder::feed`), resets the board within `watchdog::TIMEOUT_US`.
+    let mut wdg = IndependentWatchdog::new(p.IWDG, watchdog::TIMEOUT_US);
     wdg.unleash();
     spawner.spawn(spawned(
         controller_task(device, hal, UsbRx(receiver), Feeder::new(Iwdg(wdg))),
         "controller_task",
     ));
     spawner.spawn(spawned(blink(led), "blink"));
+}
+
+/// `pin` as an output, if it is the map's `want` (the pin the step and fault paths write): the typed
+/// pins above and `gonio_firmware::pin_map` cannot disagree unnoticed. The check folds to nothing
+/// when they agree.
+fn driver_output<P: Pin>(pin: Peri<'static, P>, want: pin_map::Pin, level: Level, speed: Speed) -> Output<'static> {
+    if pin.port() != want.port as u8 || pin.pin() != want.bit {
+        defmt::panic!("pin P{=u8}.{=u8} is not the pin map's", pin.port(), pin.pin());
+    }
+    Output::new(pin, level, speed)
 }
 
 #[embassy_executor::task]
