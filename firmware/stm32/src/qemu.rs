@@ -4,9 +4,10 @@
 //! `Device`, `QueuedHal` and `StepQueue` are the board's.
 //!
 //! USART1 is driven through 32-bit register accesses only (QEMU's model bus-faults 8-bit ones):
-//! its receive interrupt moves each byte into `RX_PIPE`; when the pipe is full it stops taking
-//! bytes (the byte stays in DR, and QEMU holds the rest in the pty) until the loop has read.
-//! `uart_tx_task` writes the TX pipe to DR.
+//! its receive interrupt moves each byte into `RX_PIPE`; when the pipe is full it masks itself in
+//! the NVIC and leaves the byte in DR (QEMU holds the rest in the pty: the host is held back,
+//! nothing is dropped) until the loop has read from the pipe and unmasked it. `uart_tx_task`
+//! writes the TX pipe to DR.
 
 use crate::host_loop::{self, Feeder, HostRx, RxEvent, Watchdog, RX_CHUNK, TX_PIPE};
 use crate::qemu_board::{self, CsQueue, StandIn, SYSCLK_HZ, TICK_US};
@@ -90,8 +91,11 @@ fn USART1() {
         return;
     }
     if RX_PIPE.is_full() {
-        // Leave the byte in DR: QEMU delivers no more until it is read. `UartRx` re-enables.
-        wr(USART_CR1, rd(USART_CR1) & !CR1_RXNEIE);
+        // Leave the byte in DR (QEMU delivers no more until it is read) and stay out until
+        // `UartRx` has made room. Masked in the NVIC, not by clearing RXNEIE: QEMU 7.2's USART
+        // lowers its interrupt line only when DR is read, and the NVIC re-enters a handler whose
+        // line is still high, so this handler ran back to back and starved every task.
+        interrupt::USART1.disable();
         return;
     }
     let byte = rd(USART_DR) as u8;
@@ -108,10 +112,10 @@ impl HostRx for UartRx {
             return RxEvent::Connected;
         }
         let n = RX_PIPE.read(buf).await;
-        // Room again: let the interrupt take the byte it may have left in DR. Pended by hand: QEMU's
-        // USART raises its interrupt only when a byte arrives, not when RXNEIE is set again.
-        cortex_m::interrupt::free(|_| wr(USART_CR1, rd(USART_CR1) | CR1_RXNEIE));
-        interrupt::USART1.pend();
+        // Room again: a byte the interrupt left in DR still holds its line high, so it is pending
+        // and taken as soon as it is unmasked.
+        // SAFETY: the handler only touches USART1 and the RX pipe.
+        unsafe { interrupt::USART1.enable() };
         RxEvent::Data(n)
     }
 }
