@@ -6,7 +6,7 @@
 
 pub mod prior;
 
-pub use prior::{FittedPrior, LevelSamples, NoPrior, Prior, TwoLobesPrior, SHARP_FLOOR_SHARE};
+pub use prior::{FittedPrior, LevelSamples, NoPrior, OtherModel, Prior, TwoLobesPrior, SHARP_FLOOR_SHARE};
 
 use crate::brdf::grid::{MeasurementGrid, NodeLayout};
 use crate::brdf::warp::{SliceWarp, UniformAngles, Warp};

@@ -6,6 +6,7 @@ use crate::brdf::fit_lobes::{self, DiffuseBound, LobeFresnel};
 use crate::brdf::spec::Analytic;
 use crate::brdf::Material;
 use glam::DVec3;
+use std::sync::Arc;
 
 /// A level's measurements as a prior fits them.
 #[derive(Clone, Debug)]
@@ -87,6 +88,21 @@ impl Prior for NoPrior {
 pub enum FittedPrior {
     Lobe(Analytic),
     TwoLobes(fit_lobes::TwoLobes),
+    /// Any other model (a trial's), with its one-line description.
+    Other(OtherModel),
+}
+
+/// A fitted model that is neither analytic nor two lobes, e.g. a basis fit's table.
+#[derive(Clone)]
+pub struct OtherModel {
+    pub model: Arc<dyn Material>,
+    pub describe: String,
+}
+
+impl std::fmt::Debug for OtherModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.describe)
+    }
 }
 
 impl FittedPrior {
@@ -95,6 +111,7 @@ impl FittedPrior {
         match self {
             FittedPrior::Lobe(m) => m.eval(wi, wo),
             FittedPrior::TwoLobes(m) => m.eval(wi, wo),
+            FittedPrior::Other(m) => m.model.eval(wi, wo),
         }
     }
 
@@ -103,6 +120,7 @@ impl FittedPrior {
         match self {
             FittedPrior::Lobe(m) => m.to_spec(),
             FittedPrior::TwoLobes(m) => m.describe(),
+            FittedPrior::Other(m) => m.describe.clone(),
         }
     }
 }

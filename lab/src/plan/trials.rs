@@ -1,19 +1,22 @@
 //! Trial priors of `gonio-lab tradeoff --prior`: each lost to the product's two-lobes
 //! (docs/tradeoff/README.md). One file, one `reconstruct::Prior` each; not used by a scan.
 
+use super::nielsen::selected;
 use super::photo_samples::{self, PhotoSamples};
 use gonio::brdf::fit::{fit_samples, FitModel};
 use gonio::brdf::fit_lobes::{fit_two_lobes_bounded, DiffuseBound, LobeFresnel};
 use gonio::reconstruct::{FittedPrior, LevelSamples, NoPrior, Prior, TwoLobesPrior};
 
 /// The names `--prior` takes: the product's first.
-pub const PRIOR_NAMES: [&str; 6] = [
+pub const PRIOR_NAMES: [&str; 8] = [
     "two-lobes",
     "none",
     "fit",
     "two-lobes-plain",
     "two-lobes-capped",
     "two-lobes-photo",
+    "pca",
+    "two-lobes-or-pca",
 ];
 
 /// The prior called `name`; `photo` supplies the capture photo's pixels, asked for by two-lobes-photo only.
@@ -28,8 +31,15 @@ pub fn prior_by_name(
         "two-lobes-plain" => Box::new(PlainTwoLobesPrior),
         "two-lobes-capped" => Box::new(CappedTwoLobesPrior),
         "two-lobes-photo" => Box::new(PhotoTwoLobesPrior { photo: photo()? }),
+        "pca" => Box::new(selected::pca_prior()?),
+        "two-lobes-or-pca" => Box::new(selected::selected_prior()?),
         other => return Err(format!("unknown prior {other:?} (one of {})", PRIOR_NAMES.join(", "))),
     })
+}
+
+/// Whether the prior called `name` reads the nielsen2015 training basis (built or read from the cache).
+pub fn needs_basis(name: &str) -> bool {
+    name == "pca" || name == "two-lobes-or-pca"
 }
 
 /// Whether the prior called `name` reads the capture photo.
@@ -175,7 +185,8 @@ mod tests {
 
     #[test]
     fn every_name_builds_its_prior_and_unknown_names_are_refused() {
-        for name in PRIOR_NAMES {
+        // The basis priors are built by `nielsen::selected`'s own tests (the training basis is slow in debug).
+        for name in PRIOR_NAMES.into_iter().filter(|n| !needs_basis(n)) {
             let prior = prior_by_name(name, || Ok(PhotoSamples::default())).expect(name);
             assert_eq!(prior.name(), name);
         }

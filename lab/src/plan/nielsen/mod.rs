@@ -5,12 +5,15 @@
 //! * `bins`: the 32 x 32 x 64 (theta_h, theta_d, phi_d) bins, the log mapping, the binned BRDF.
 //! * `basis`: the PCA basis of the training materials' tables (cached).
 //! * `select`: the condition-number direction selection over the bins this instrument reaches.
+//! * `selected`: the basis as a reconstruction prior, and the per-scan choice between it and the
+//!   product's two-lobe prior by cross-validation over the scan's own measurements (issue 28).
 //! * here: the ridge fit of the basis coefficients to measurements at a selected set (its normal
 //!   equations factored once per set), and the caches.
 
 pub mod basis;
 pub mod bins;
 pub mod select;
+pub mod selected;
 
 use basis::Basis;
 use bins::{centre, cos_weight, map, unmap, BinnedBrdf, BINS};
@@ -86,13 +89,7 @@ impl Design {
         let a = DMatrix::from_fn(bins.len(), k, |i, j| basis.row(bins[i])[j] as f64 * basis.sigma[j]);
         let normal = a.transpose() * &a + DMatrix::identity(k, k) * ridge;
         let chol = Cholesky::new(normal).ok_or("the ridge system is not positive definite")?;
-        let weight = (0..BINS)
-            .into_par_iter()
-            .map(|b| match basis.valid[b].then(|| centre(b)).flatten() {
-                Some((wi, wo)) => cos_weight(wi, wo),
-                None => 0.0,
-            })
-            .collect();
+        let weight = centre_weights(basis);
         Ok(Self {
             bins,
             pairs,
@@ -118,26 +115,42 @@ impl Design {
                 co[c] = (a[j] * basis.sigma[j]) as f32;
             }
         }
-        let values = (0..BINS)
-            .into_par_iter()
-            .with_min_len(1024)
-            .map(|b| {
-                let w = self.weight[b];
-                if w <= 0.0 {
-                    return [0.0f32; 3];
-                }
-                // The three channels in one pass over the bin's row (same sums, same order).
-                let mut y = [-0.0f32; 3];
-                for (u, co) in basis.row(b).iter().zip(&coeffs) {
-                    for (yc, cc) in y.iter_mut().zip(co) {
-                        *yc += u * cc;
-                    }
-                }
-                y.map(|y| (unmap(basis.mean[b] + y as f64, basis.median[b]) / w) as f32)
-            })
-            .collect();
-        BinnedBrdf { values }
+        table(basis, &self.weight, &coeffs)
     }
+}
+
+/// Per bin: the clipped cosine product at its centre, 0 where the bin is invalid.
+pub fn centre_weights(basis: &Basis) -> Vec<f64> {
+    (0..BINS)
+        .into_par_iter()
+        .map(|b| match basis.valid[b].then(|| centre(b)).flatten() {
+            Some((wi, wo)) => cos_weight(wi, wo),
+            None => 0.0,
+        })
+        .collect()
+}
+
+/// The table of basis coefficients `coeffs` (per component, RGB), `weight` from `centre_weights`.
+pub fn table(basis: &Basis, weight: &[f64], coeffs: &[[f32; 3]]) -> BinnedBrdf {
+    let values = (0..BINS)
+        .into_par_iter()
+        .with_min_len(1024)
+        .map(|b| {
+            let w = weight[b];
+            if w <= 0.0 {
+                return [0.0f32; 3];
+            }
+            // The three channels in one pass over the bin's row (same sums, same order).
+            let mut y = [-0.0f32; 3];
+            for (u, co) in basis.row(b).iter().zip(coeffs) {
+                for (yc, cc) in y.iter_mut().zip(co) {
+                    *yc += u * cc;
+                }
+            }
+            y.map(|y| (unmap(basis.mean[b] + y as f64, basis.median[b]) / w) as f32)
+        })
+        .collect();
+    BinnedBrdf { values }
 }
 
 #[cfg(test)]

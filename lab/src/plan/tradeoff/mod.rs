@@ -32,7 +32,7 @@ use std::path::Path;
 use std::time::Instant;
 
 pub mod closed_loop;
-mod liu;
+pub mod liu;
 mod markdown;
 mod peer;
 mod presets;

@@ -1,0 +1,197 @@
+//! Chooses the folds, the ridge and the threshold of `nielsen::selected::SelectedPrior` on the 75
+//! TRAINING materials only (never the held-out fifteen, never rgl), for docs/nielsen2015.md:
+//!
+//! 5 material folds: per fold a basis from the other 60 materials; each left-out material is
+//! planned as `gonio-lab tradeoff`'s `adaptive` plans it (the shipped encoder's photo estimate,
+//! levels 2x2, 4x4, 8x8, 8 incoming elevations), measured without noise, and reconstructed per level
+//! with the two-lobe prior and with the basis prior at each ridge. Per level the scan's own
+//! cross-validation (each fold count) says which it would pick; "pick PCA when its CV error is below
+//! threshold x the two lobes'". Printed: per (folds, ridge, threshold) the geometric mean over
+//! materials of the picked reconstruction's brdf_log_err and liu_log_err against the two lobes',
+//! per level, and the best setting (lowest mean over levels of brdf_log_err and liu_log_err).
+//!
+//!     cargo run --release -p gonio-lab --example prior_choice_check [--every N]
+//!
+//! `--every N` takes every N-th training material (a quicker look); the committed figures use N = 1.
+
+use gonio::brdf::nbrdf::NeuralBrdf;
+use gonio::brdf::Material;
+use gonio::encoder::infer::Encoder;
+use gonio::encoder::ModelKind;
+use gonio::plan::predict::{log_err_over, Scorer};
+use gonio::plan::{PlanConfig, Planner};
+use gonio::reconstruct::{reconstruct_with, FittedPrior, LevelSamples, Prior, TwoLobesPrior};
+use gonio_lab::plan::nielsen::basis::{tabulate, Basis};
+use gonio_lab::plan::nielsen::selected::{cross_validate, PcaModel, PcaPrior};
+use gonio_lab::plan::nielsen::training_names;
+use gonio_lab::plan::tradeoff::{capture_photo, liu::liu_pairs, photo_estimate};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+const MATERIAL_FOLDS: usize = 5;
+const CV_FOLDS: [usize; 3] = [3, 5, 10];
+const RIDGES: [f64; 6] = [1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3];
+const THRESHOLDS: [f64; 6] = [0.9, 1.0, 1.1, 1.25, 1.5, 2.0];
+const GRIDS: [(usize, usize); 3] = [(2, 2), (4, 4), (8, 8)];
+
+/// Fits the two lobes and records the level's cross-validated errors for every setting.
+struct Recorder {
+    model: Arc<PcaModel>,
+    /// Per fold count: (two lobes, per ridge).
+    cv: Mutex<Vec<(f64, Vec<f64>)>>,
+}
+
+impl Prior for Recorder {
+    fn name(&self) -> &'static str {
+        "recorder"
+    }
+    fn fit(&self, s: &LevelSamples<'_>) -> Option<FittedPrior> {
+        let cv = CV_FOLDS
+            .iter()
+            .map(|&k| cross_validate(&self.model, s, k, &RIDGES))
+            .collect();
+        *self.cv.lock().ok()? = cv;
+        TwoLobesPrior.fit(s)
+    }
+}
+
+/// One (material, level): scores of the two lobes and of the basis per ridge (brdf, liu), and the CV.
+struct Case {
+    level: usize,
+    lobes: (f64, f64),
+    pca: Vec<(f64, f64)>,
+    cv: Vec<(f64, Vec<f64>)>,
+}
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().collect();
+    let every: usize = match args.iter().position(|a| a == "--every") {
+        Some(i) => args
+            .get(i + 1)
+            .ok_or_else(|| anyhow::anyhow!("--every needs N"))?
+            .parse()?,
+        None => 1,
+    };
+    let t0 = Instant::now();
+    let names = training_names();
+    let materials: Vec<Box<dyn Material>> = names
+        .iter()
+        .map(|n| NeuralBrdf::bundled(n).map(|m| Box::new(m) as Box<dyn Material>))
+        .collect::<Result<_, _>>()?;
+    let obs = tabulate(&materials);
+    let encoder = Encoder::shipped(ModelKind::Ggx)?;
+    let instrument = gonio::instrument::default_instrument();
+    let scorer = Scorer::new(16)?;
+    let liu = liu_pairs();
+    let config = PlanConfig {
+        grids: GRIDS.to_vec(),
+        ..PlanConfig::default()
+    };
+    let mut cases: Vec<Case> = Vec::new();
+    for fold in 0..MATERIAL_FOLDS {
+        let train: Vec<Vec<f64>> = (0..materials.len())
+            .filter(|m| m % MATERIAL_FOLDS != fold)
+            .flat_map(|m| obs[3 * m..3 * m + 3].to_vec())
+            .collect();
+        let model = Arc::new(PcaModel::new(Basis::from_observations(&train)));
+        for m in (0..materials.len()).filter(|m| m % MATERIAL_FOLDS == fold && m % every == 0) {
+            let spec = format!("nbrdf:{}", names[m]);
+            let truth = materials[m].as_ref();
+            let (_, photo) = capture_photo(&spec)?;
+            let (estimate, _) = photo_estimate(&photo, &encoder)?;
+            let plan = Planner::new(instrument, estimate)?.plan(&config)?;
+            let measured = plan.measure(truth);
+            for l in &plan.levels {
+                let recorder = Recorder {
+                    model: model.clone(),
+                    cv: Mutex::new(Vec::new()),
+                };
+                let scores = |rec: &dyn Material| (scorer.log_err(truth, rec), log_err_over(&liu, truth, rec));
+                let lobes = scores(&reconstruct_with(&plan, l.level, &measured, &recorder)?);
+                let pca = RIDGES
+                    .iter()
+                    .map(|&ridge| {
+                        let prior = PcaPrior {
+                            model: model.clone(),
+                            ridge,
+                        };
+                        Ok(scores(&reconstruct_with(&plan, l.level, &measured, &prior)?))
+                    })
+                    .collect::<anyhow::Result<Vec<_>>>()?;
+                let cv = recorder.cv.into_inner().map_err(|_| anyhow::anyhow!("poisoned"))?;
+                cases.push(Case {
+                    level: l.level,
+                    lobes,
+                    pca,
+                    cv,
+                });
+            }
+            eprintln!("{} done ({:.0} s)", names[m], t0.elapsed().as_secs_f64());
+        }
+    }
+    report(&cases);
+    Ok(())
+}
+
+/// Geometric mean of `picked / lobes` per level, for brdf (0) and liu (1).
+fn ratios(cases: &[Case], pick: impl Fn(&Case) -> Option<usize>) -> Vec<[f64; 2]> {
+    (1..=GRIDS.len())
+        .map(|level| {
+            let of: Vec<&Case> = cases.iter().filter(|c| c.level == level).collect();
+            let geo = |get: &dyn Fn(&Case) -> f64| {
+                let s: f64 = of.iter().map(|c| get(c).max(1e-12).ln()).sum();
+                (s / of.len().max(1) as f64).exp()
+            };
+            let picked = |c: &Case, i: usize| match pick(c) {
+                Some(r) => [c.pca[r].0, c.pca[r].1][i],
+                None => [c.lobes.0, c.lobes.1][i],
+            };
+            [0, 1].map(|i| geo(&|c| picked(c, i)) / geo(&|c| [c.lobes.0, c.lobes.1][i]))
+        })
+        .collect()
+}
+
+fn report(cases: &[Case]) {
+    let line = |label: String, r: &[[f64; 2]], share: f64| {
+        println!(
+            "| {label} |{} {share:.2} |",
+            r.iter()
+                .map(|v| format!(" {:.3} / {:.3} |", v[0], v[1]))
+                .collect::<String>()
+        )
+    };
+    println!(
+        "\n{} cases; geometric mean over materials of the picked reconstruction's brdf_log_err / liu_log_err \
+         against the two lobes' (below 1: better), per level:\n",
+        cases.len()
+    );
+    println!("| setting | 24 | 104 | 456 | share picking PCA |\n|---|---|---|---|---|");
+    for (r, ridge) in RIDGES.iter().enumerate() {
+        line(format!("PCA always, ridge {ridge}"), &ratios(cases, |_| Some(r)), 1.0);
+    }
+    line(
+        "oracle (the better per case)".into(),
+        &ratios(cases, |c| {
+            let best = (0..RIDGES.len()).min_by(|&a, &b| c.pca[a].0.total_cmp(&c.pca[b].0))?;
+            (c.pca[best].0 < c.lobes.0).then_some(best)
+        }),
+        f64::NAN,
+    );
+    let mut best = (f64::INFINITY, String::new());
+    for (f, folds) in CV_FOLDS.iter().enumerate() {
+        for (r, ridge) in RIDGES.iter().enumerate() {
+            for t in THRESHOLDS {
+                let pick = |c: &Case| (c.cv[f].1[r] < t * c.cv[f].0).then_some(r);
+                let share = cases.iter().filter(|c| pick(c).is_some()).count() as f64 / cases.len().max(1) as f64;
+                let rs = ratios(cases, pick);
+                let label = format!("CV {folds} folds, ridge {ridge}, threshold {t}");
+                let mean = rs.iter().map(|v| v[0].ln() + v[1].ln()).sum::<f64>();
+                if mean < best.0 {
+                    best = (mean, label.clone());
+                }
+                line(label, &rs, share);
+            }
+        }
+    }
+    println!("\nbest: {}", best.1);
+}

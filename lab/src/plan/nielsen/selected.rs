@@ -1,0 +1,319 @@
+//! The peer's basis as a reconstruction prior, and the per-scan choice between it and the product's
+//! two-lobe prior (issue 28; figures in docs/nielsen2015.md).
+//!
+//! `PcaPrior`: the ridge fit of the basis coefficients to a level's measurements, each measured
+//! pair read at the bin it falls in, the reconstruction the binned table (trilinear).
+//! `SelectedPrior`: K-fold cross-validation over the level's own measurements (folds interleaved
+//! in measurement order), each prior fitted on K - 1 folds and scored on the left-out one by the
+//! two-lobe fit's own error (|log(1 + f cos_o) - log(1 + f_rec cos_o)|, weighted by the equal-angle
+//! measure each sample stands for); the prior with the lower total is fitted to all measurements.
+//! No ground truth is read.
+
+use super::basis::Basis;
+use super::bins::{coords, cos_weight, index, map, unmap, N_PHI_D, N_THETA_D, N_THETA_H};
+use super::{centre_weights, table};
+use glam::DVec3;
+use gonio::reconstruct::{FittedPrior, LevelSamples, OtherModel, Prior, TwoLobesPrior};
+use nalgebra::{Cholesky, DMatrix, DVector};
+use std::sync::Arc;
+
+/// Ridge of `PcaPrior` (a noise variance against the unit prior of each component): chosen by
+/// `cargo run --release -p gonio-lab --example prior_choice_check` on the training materials.
+pub const PCA_RIDGE: f64 = 0.1;
+/// Folds of `SelectedPrior`'s cross-validation, and how much larger than the two lobes' the
+/// basis' cross-validated error may be and still be picked (both chosen by the same check).
+pub const FOLDS: usize = 5;
+pub const THRESHOLD: f64 = 1.0;
+
+/// The training basis' model, loaded once per process.
+pub fn training_model() -> Result<Arc<PcaModel>, String> {
+    static MODEL: std::sync::OnceLock<Result<Arc<PcaModel>, String>> = std::sync::OnceLock::new();
+    MODEL
+        .get_or_init(|| super::training_basis().map(|b| Arc::new(PcaModel::new(b))))
+        .clone()
+}
+
+/// `PcaPrior` of the training basis at `PCA_RIDGE`.
+pub fn pca_prior() -> Result<PcaPrior, String> {
+    Ok(PcaPrior {
+        model: training_model()?,
+        ridge: PCA_RIDGE,
+    })
+}
+
+/// `SelectedPrior` of the training basis at `PCA_RIDGE` and `FOLDS`.
+pub fn selected_prior() -> Result<SelectedPrior, String> {
+    Ok(SelectedPrior {
+        pca: pca_prior()?,
+        folds: FOLDS,
+        threshold: THRESHOLD,
+    })
+}
+
+/// The basis with its per-bin centre weights (computed once).
+pub struct PcaModel {
+    pub basis: Basis,
+    weight: Vec<f64>,
+}
+
+impl PcaModel {
+    pub fn new(basis: Basis) -> Self {
+        let weight = centre_weights(&basis);
+        Self { basis, weight }
+    }
+
+    /// The bin a pair falls in (nearest: its continuous coordinates floored, clamped), None if the
+    /// pair has no half vector or the bin is invalid.
+    fn bin_of(&self, wi: DVec3, wo: DVec3) -> Option<usize> {
+        let c = coords(wi, wo)?;
+        let at = |x: f64, n: usize| (x.max(0.0) as usize).min(n - 1);
+        let b = index(at(c[0], N_THETA_H), at(c[1], N_THETA_D), at(c[2], N_PHI_D));
+        self.basis.valid[b].then_some(b)
+    }
+
+    /// Ridge-fitted coefficients (per component, RGB) of `values` at `pairs`; None when no pair
+    /// lands in a valid bin or the system is singular.
+    pub fn coefficients(&self, pairs: &[(DVec3, DVec3)], values: &[DVec3], ridge: f64) -> Option<Vec<[f32; 3]>> {
+        let basis = &self.basis;
+        let k = basis.k();
+        let rows: Vec<(usize, DVec3, f64)> = pairs
+            .iter()
+            .zip(values)
+            .filter(|(_, v)| v.is_finite())
+            .filter_map(|(&(wi, wo), &v)| Some((self.bin_of(wi, wo)?, v, cos_weight(wi, wo))))
+            .collect();
+        if rows.is_empty() || k == 0 {
+            return None;
+        }
+        let a = DMatrix::from_fn(rows.len(), k, |i, j| basis.row(rows[i].0)[j] as f64 * basis.sigma[j]);
+        let normal = a.transpose() * &a + DMatrix::identity(k, k) * ridge;
+        let chol = Cholesky::new(normal)?;
+        let mut coeffs = vec![[0.0f32; 3]; k];
+        for c in 0..3 {
+            let r = DVector::from_fn(rows.len(), |i, _| {
+                let (b, v, w) = rows[i];
+                map(v[c] * w, basis.median[b]) - basis.mean[b]
+            });
+            let x = chol.solve(&(a.transpose() * r));
+            for (j, co) in coeffs.iter_mut().enumerate() {
+                co[c] = (x[j] * basis.sigma[j]) as f32;
+            }
+        }
+        coeffs.iter().all(|c| c.iter().all(|x| x.is_finite())).then_some(coeffs)
+    }
+
+    /// The fit's value at a pair (its bin's), without building the table: for cross-validation.
+    fn value_at(&self, coeffs: &[[f32; 3]], wi: DVec3, wo: DVec3) -> DVec3 {
+        let Some(b) = self.bin_of(wi, wo) else {
+            return DVec3::ZERO;
+        };
+        let row = self.basis.row(b);
+        let w = cos_weight(wi, wo);
+        DVec3::from_array(std::array::from_fn(|c| {
+            let y: f64 = row.iter().zip(coeffs).map(|(u, co)| *u as f64 * co[c] as f64).sum();
+            unmap(self.basis.mean[b] + y, self.basis.median[b]) / w
+        }))
+    }
+}
+
+/// The basis fit as a prior.
+pub struct PcaPrior {
+    pub model: Arc<PcaModel>,
+    pub ridge: f64,
+}
+
+impl Prior for PcaPrior {
+    fn name(&self) -> &'static str {
+        "pca"
+    }
+    fn about(&self) -> &'static str {
+        " (each level's measurements are fitted with the ridge fit of the nielsen2015 PCA basis of the \
+         75 training MERL fits, each pair read at its 32 x 32 x 64 bin; the grid interpolates the \
+         residuals and the binned table is evaluated at the query)"
+    }
+    fn fit(&self, s: &LevelSamples<'_>) -> Option<FittedPrior> {
+        let coeffs = self.model.coefficients(&s.pairs, s.values, self.ridge)?;
+        Some(FittedPrior::Other(OtherModel {
+            model: Arc::new(table(&self.model.basis, &self.model.weight, &coeffs)),
+            describe: format!("pca ridge={} k={}", self.ridge, self.model.basis.k()),
+        }))
+    }
+}
+
+/// Which prior the cross-validation picked, with both totals.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Choice {
+    pub pca: bool,
+    pub two_lobes_err: f64,
+    pub pca_err: f64,
+}
+
+/// The per-scan choice between `TwoLobesPrior` and `PcaPrior` (see the module doc).
+pub struct SelectedPrior {
+    pub pca: PcaPrior,
+    pub folds: usize,
+    /// The basis is picked when its CV error is below `threshold` x the two lobes'.
+    pub threshold: f64,
+}
+
+impl SelectedPrior {
+    /// The cross-validated errors of both priors on `s`, and the choice (two lobes when neither
+    /// has an error: too few samples).
+    pub fn choose(&self, s: &LevelSamples<'_>) -> Choice {
+        let (two_lobes_err, pca) = cross_validate(&self.pca.model, s, self.folds, &[self.pca.ridge]);
+        Choice {
+            pca: pca[0] < self.threshold * two_lobes_err,
+            two_lobes_err,
+            pca_err: pca[0],
+        }
+    }
+}
+
+/// K-fold cross-validated total error of the two-lobe prior and of the basis fit at each of
+/// `ridges` on `s` (see the module doc); zeros (two lobes are kept) with fewer usable samples than
+/// two per fold.
+pub fn cross_validate(model: &PcaModel, s: &LevelSamples<'_>, folds: usize, ridges: &[f64]) -> (f64, Vec<f64>) {
+    let usable: Vec<usize> = (0..s.pairs.len())
+        .filter(|&i| s.weights[i] > 0.0 && s.values[i].is_finite() && s.pairs[i].1.z > 0.0)
+        .collect();
+    let k = folds.max(2);
+    let (mut lobes_err, mut pca_err) = (0.0, vec![0.0; ridges.len()]);
+    if usable.len() < 2 * k {
+        return (lobes_err, pca_err);
+    }
+    for fold in 0..k {
+        let (test, train): (Vec<_>, Vec<_>) = usable.iter().enumerate().partition(|(n, _)| n % k == fold);
+        let train: Vec<usize> = train.into_iter().map(|(_, &i)| i).collect();
+        let values: Vec<DVec3> = train.iter().map(|&i| s.values[i]).collect();
+        let sub = LevelSamples {
+            pairs: train.iter().map(|&i| s.pairs[i]).collect(),
+            values: &values,
+            weights: train.iter().map(|&i| s.weights[i]).collect(),
+            estimate_alpha: s.estimate_alpha,
+        };
+        let lobes = TwoLobesPrior.fit(&sub);
+        let coeffs: Vec<_> = ridges
+            .iter()
+            .map(|&r| model.coefficients(&sub.pairs, &values, r))
+            .collect();
+        for &(_, &i) in &test {
+            let (wi, wo) = s.pairs[i];
+            let err = |f: DVec3| weighted_log_err(s.values[i], f, wo.z, s.weights[i]);
+            lobes_err += lobes.as_ref().map_or(f64::INFINITY, |p| err(p.eval(wi, wo)));
+            for (e, c) in pca_err.iter_mut().zip(&coeffs) {
+                *e += c.as_ref().map_or(f64::INFINITY, |c| err(model.value_at(c, wi, wo)));
+            }
+        }
+    }
+    (lobes_err, pca_err)
+}
+
+/// The two-lobe fit's error of `got` against `want` at cos_o, times the sample's weight (RGB mean).
+fn weighted_log_err(want: DVec3, got: DVec3, cos_o: f64, weight: f64) -> f64 {
+    let l = |v: DVec3| (v.max(DVec3::ZERO) * cos_o).to_array().map(f64::ln_1p);
+    let (a, b) = (l(want), l(got));
+    weight * (0..3).map(|c| (a[c] - b[c]).abs()).sum::<f64>() / 3.0
+}
+
+impl Prior for SelectedPrior {
+    fn name(&self) -> &'static str {
+        "two-lobes-or-pca"
+    }
+    fn about(&self) -> &'static str {
+        " (per level, two-lobes or pca, whichever has the lower K-fold cross-validated log error over \
+         the level's own measurements, weighted as the two-lobe fit weighs them; then the grid \
+         interpolates the residuals of the chosen one)"
+    }
+    fn fit(&self, s: &LevelSamples<'_>) -> Option<FittedPrior> {
+        match self.choose(s).pca {
+            true => self.pca.fit(s).or_else(|| TwoLobesPrior.fit(s)),
+            false => TwoLobesPrior.fit(s),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gonio::brdf::{parse_material, Material};
+
+    /// A retro-reflective lobe plus Lambert: what two GGX lobes cannot fit.
+    struct Retro {
+        k: f64,
+        kd: f64,
+    }
+
+    impl Material for Retro {
+        fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
+            if wi.z <= 0.0 || wo.z <= 0.0 {
+                return DVec3::ZERO;
+            }
+            DVec3::splat(self.kd / std::f64::consts::PI + self.k * (-(wi - wo).length_squared() / 0.05).exp())
+        }
+    }
+
+    fn retro_basis() -> Basis {
+        let family = [(1.0, 0.1), (0.5, 0.3), (2.0, 0.05), (0.2, 0.5)];
+        Basis::build(
+            &family
+                .iter()
+                .map(|&(k, kd)| Box::new(Retro { k, kd }) as Box<dyn Material>)
+                .collect::<Vec<_>>(),
+        )
+    }
+
+    /// 150 pairs spread over both hemispheres (incoming 0.1 .. 1.3 rad, outgoing all azimuths).
+    fn pairs() -> Vec<(DVec3, DVec3)> {
+        let n = 150;
+        let d = |t: f64, p: f64| DVec3::new(t.sin() * p.cos(), t.sin() * p.sin(), t.cos());
+        (0..n)
+            .map(|i| {
+                let ti = 0.1 + 1.2 * ((i * 7) % n) as f64 / n as f64;
+                let to = 0.05 + 1.3 * ((i * 11) % n) as f64 / n as f64;
+                (d(ti, 0.0), d(to, 0.37 * i as f64))
+            })
+            .collect()
+    }
+
+    /// A material in the basis' span (retro-reflection) picks the basis; one it cannot span but
+    /// two lobes fit exactly (a sharp GGX lobe) picks the two lobes; degenerate inputs stay finite.
+    #[test]
+    fn the_choice_follows_which_prior_predicts_left_out_samples() {
+        let prior = SelectedPrior {
+            pca: PcaPrior {
+                model: Arc::new(PcaModel::new(retro_basis())),
+                ridge: 1e-3,
+            },
+            folds: 5,
+            threshold: 1.0,
+        };
+        let run = |m: &dyn Material| {
+            let pairs = pairs();
+            let values: Vec<DVec3> = pairs.iter().map(|&(wi, wo)| m.eval(wi, wo)).collect();
+            let s = LevelSamples {
+                pairs,
+                values: &values,
+                weights: vec![1.0; values.len()],
+                estimate_alpha: 0.1,
+            };
+            (prior.choose(&s), prior.fit(&s).map(|p| p.describe()))
+        };
+        let (inside, described) = run(&Retro { k: 0.8, kd: 0.2 });
+        assert!(inside.pca, "{inside:?}");
+        assert!(described.is_some_and(|d| d.starts_with("pca")));
+        let ggx = parse_material("ggx:alpha=0.05,diffuse=0.1,specular=1").expect("spec");
+        let (outside, _) = run(ggx.as_ref());
+        assert!(!outside.pca, "{outside:?}");
+        let zeros = vec![DVec3::ZERO; 3];
+        let s = LevelSamples {
+            pairs: vec![(DVec3::Z, DVec3::Z); 3],
+            values: &zeros,
+            weights: vec![0.0, f64::NAN, 1.0],
+            estimate_alpha: 0.0,
+        };
+        assert!(!prior.choose(&s).pca);
+        let fitted = prior.fit(&s).expect("two lobes");
+        assert!(fitted.eval(DVec3::Z, DVec3::Z).is_finite());
+        assert!(prior.pca.fit(&s).is_none_or(|p| p.eval(DVec3::Z, DVec3::Z).is_finite()));
+    }
+}
