@@ -201,6 +201,8 @@ pub struct ClosedLoopArgs {
 pub fn run_closed_loop(args: ClosedLoopArgs) -> Result<()> {
     let instrument = gonio::instrument::load_or_default(args.instrument.as_deref())?;
     let max_level = level_of(args.max_grid, "--max-grid")?;
+    // The regenerate line repeats the materials and trials given.
+    let given: Vec<String> = args.materials.iter().map(|m| format!(" --material {m}")).collect();
     let materials = if args.materials.is_empty() {
         args.preset.materials()
     } else {
@@ -215,8 +217,6 @@ pub fn run_closed_loop(args: ClosedLoopArgs) -> Result<()> {
             .map(|t| tradeoff::closed_loop::Trial::parse(t).map_err(anyhow::Error::msg))
             .collect::<Result<Vec<_>>>()?
     };
-    // The regenerate line repeats the materials and trials given.
-    let given: Vec<String> = args.materials.iter().map(|m| format!(" --material {m}")).collect();
     let trial_args: String = given
         .into_iter()
         .chain(args.trials.iter().map(|t| format!(" --trial {t}")))
