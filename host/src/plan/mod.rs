@@ -141,10 +141,35 @@ impl Estimate {
 pub struct PlanConfig {
     pub strategy: Strategy,
     pub spacing: Spacing,
-    /// Number of incoming elevations.
+    /// Number of incoming elevations of the deepest level.
     pub k: usize,
     /// The levels' outgoing grids (N, M), coarsest first; each level's N and M divide the next's.
     pub grids: Vec<(usize, usize)>,
+    /// Per level, its incoming elevations (nested: each level's are among the next's, the last is
+    /// `k`); empty: `k` at every level. A level's new elevations get the full grid of that level.
+    pub incoming: Vec<usize>,
+}
+
+impl PlanConfig {
+    /// Incoming elevations of level `level` (1-based).
+    pub fn incoming_at(&self, level: usize) -> usize {
+        level
+            .checked_sub(1)
+            .and_then(|l| self.incoming.get(l))
+            .copied()
+            .unwrap_or(self.k)
+    }
+
+    /// Step, in the deepest level's elevations, between level `level`'s elevations (slice k of
+    /// the plan is on that level when k is a multiple of it).
+    pub fn incoming_stride(&self, level: usize) -> usize {
+        let here = self.incoming_at(level);
+        // Guard: one elevation (theta 0) has no step; it is slice 0 alone.
+        if here <= 1 {
+            return self.k.max(1);
+        }
+        (self.k.max(2) - 1) / (here - 1)
+    }
 }
 
 impl Default for PlanConfig {
@@ -154,6 +179,7 @@ impl Default for PlanConfig {
             spacing: Spacing::Angle,
             k: crate::brdf::grid::DEFAULT_K,
             grids: square_grids(4),
+            incoming: Vec::new(),
         }
     }
 }
@@ -166,6 +192,31 @@ pub fn square_grids(max_level: usize) -> Vec<(usize, usize)> {
 /// Checks a level list: 1..=MAX_LEVEL levels, 2 <= N <= MAX_GRID, 1 <= M <= MAX_GRID, and every
 /// level's N and M divide the next level's (so the levels nest) with more nodes than it.
 pub fn check_grids(grids: &[(usize, usize)]) -> Result<(), PlanError> {
+    check_levels(grids, &[], 1)
+}
+
+/// `check_grids` with per-level incoming counts (`PlanConfig::incoming`, deepest `k`): each
+/// level's elevations are among the next's ((K' - 1) a multiple of (K - 1)), and a level that
+/// adds elevations may keep the previous level's grid.
+pub fn check_levels(grids: &[(usize, usize)], incoming: &[usize], k: usize) -> Result<(), PlanError> {
+    if !incoming.is_empty() {
+        if incoming.len() != grids.len() || incoming.last() != Some(&k) {
+            return Err(PlanError::Invalid(format!(
+                "incoming per level {incoming:?}: expected one count per level ({}), the last {k}",
+                grids.len()
+            )));
+        }
+        for w in incoming.windows(2) {
+            let (a, b) = (w[0], w[1]);
+            let nested = a == b || (a >= 2 && b > a && (b - 1) % (a - 1) == 0) || a == 1;
+            if !nested || a == 0 {
+                return Err(PlanError::Invalid(format!(
+                    "incoming {a} -> {b}: each level's elevations must be among the next's"
+                )));
+            }
+        }
+    }
+    let grows = |l: usize| incoming.get(l + 1).zip(incoming.get(l)).is_some_and(|(b, a)| b > a);
     if grids.is_empty() || grids.len() > MAX_LEVEL {
         return Err(PlanError::Invalid(format!(
             "{} levels, expected 1..={MAX_LEVEL}",
@@ -179,9 +230,9 @@ pub fn check_grids(grids: &[(usize, usize)]) -> Result<(), PlanError> {
             )));
         }
     }
-    for w in grids.windows(2) {
+    for (l, w) in grids.windows(2).enumerate() {
         let ((n0, m0), (n1, m1)) = (w[0], w[1]);
-        if n1 % n0 != 0 || m1 % m0 != 0 || n1 * m1 <= n0 * m0 {
+        if n1 % n0 != 0 || m1 % m0 != 0 || (n1 * m1 <= n0 * m0 && !(n1 * m1 == n0 * m0 && grows(l))) {
             return Err(PlanError::Invalid(format!(
                 "grid {n1}x{m1} does not contain {n0}x{m0}: each level's N and M must divide the next's"
             )));
@@ -282,6 +333,8 @@ pub struct Plan {
     estimate_alpha: f64,
     /// Where each level's nodes sit in u (`node_layout`).
     layout: NodeLayout,
+    /// The elevations and warps of levels with fewer elevations than the plan: (stride, thetas, slices).
+    incoming_subsets: Vec<(usize, Vec<f64>, Vec<SliceWarp>)>,
 }
 
 /// The node layout of a plan with this warp and finest N: the mixture's first level measures the
@@ -398,23 +451,35 @@ impl Levels for Plan {
         let summary = self.level(level)?;
         let (n, m, limit) = (summary.n, summary.m, summary.cumulative_directions);
         let (fine_n, fine_m) = self.config.grids.last().copied().unwrap_or((n, m));
-        let mut node_measurement = Vec::with_capacity(self.thetas.len() * n * m);
-        for k in 0..self.thetas.len() {
+        let stride = self.config.incoming_stride(level).max(1);
+        let (thetas, slices) = self
+            .incoming_subsets
+            .iter()
+            .find(|s| s.0 == stride)
+            .map_or((&self.thetas[..], &self.slices[..]), |s| (&s.1[..], &s.2[..]));
+        let mut node_measurement = Vec::with_capacity(thetas.len() * n * m);
+        for k in 0..thetas.len() {
             for j in 0..m {
                 for i in 0..n {
-                    let key = (k, self.layout.fine_index(i, n, fine_n), j * (fine_m / m));
+                    let key = (k * stride, self.layout.fine_index(i, n, fine_n), j * (fine_m / m));
                     node_measurement.push(self.node_dir.get(&key).copied().filter(|&d| d < limit));
                 }
             }
         }
         Some(LevelNodes {
-            slices: &self.slices,
-            thetas: &self.thetas,
+            slices,
+            thetas,
             layout: self.layout,
             n,
             m,
             node_measurement,
-            measured: self.directions.iter().take(limit).map(|d| (d.k, d.wi, d.wo)).collect(),
+            // Every direction up to this level is on one of its slices (the elevations nest).
+            measured: self
+                .directions
+                .iter()
+                .take(limit)
+                .map(|d| (d.k / stride, d.wi, d.wo))
+                .collect(),
             estimate_alpha: self.estimate_alpha,
         })
     }

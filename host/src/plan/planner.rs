@@ -2,7 +2,7 @@
 
 use super::order::{self, Candidates};
 use super::{
-    check_grids, incoming_thetas, node_layout, Dropped, Estimate, LevelSummary, Plan, PlanConfig, PlanError,
+    check_levels, incoming_thetas, node_layout, Dropped, Estimate, LevelSummary, Plan, PlanConfig, PlanError,
     PlannedDirection, Strategy, MIXTURE_TABLE_RES, NUDGE_MAX, NUDGE_STEP, PLAN_ALPHA_MIN, U_NUDGE_STEPS,
 };
 use crate::brdf::frame::{from_spherical, phi_of, theta_of};
@@ -117,7 +117,7 @@ impl Planner {
         if config.k == 0 || config.k > 64 {
             return Err(PlanError::Invalid(format!("incoming count {} not in 1..=64", config.k)));
         }
-        check_grids(&config.grids)?;
+        check_levels(&config.grids, &config.incoming, config.k)?;
         let thetas = incoming_thetas(config.k);
         let warps: Vec<SliceWarp> = thetas.iter().map(|&t| self.slice_warp(config.strategy, t)).collect();
         let fine = *config.grids.last().expect("checked non-empty");
@@ -129,7 +129,8 @@ impl Planner {
             layout,
             fine,
         };
-        let generation = self.generate(&config.grids, &slices);
+        let strides: Vec<usize> = (1..=config.grids.len()).map(|l| config.incoming_stride(l)).collect();
+        let generation = self.generate(&config.grids, &strides, &slices);
         let Ordered {
             directions,
             levels,
@@ -148,8 +149,6 @@ impl Planner {
         Ok(Plan {
             config: config.clone(),
             warp,
-            thetas,
-            slices: warps,
             directions,
             levels,
             dropped: generation.dropped,
@@ -157,6 +156,9 @@ impl Planner {
             settle_exposure_seconds: self.settle_exposure(),
             estimate_alpha: self.estimate.alpha().max(PLAN_ALPHA_MIN),
             layout,
+            incoming_subsets: subsets(&strides, &thetas, &warps),
+            thetas,
+            slices: warps,
         })
     }
 
@@ -166,13 +168,15 @@ impl Planner {
         cfg.settle_ms as f64 * 1e-3 + cfg.exposure_us as f64 * 1e-6
     }
 
-    /// Unique directions per level, in generation (raster) order: k, then j, then i.
-    fn generate(&self, grids: &[(usize, usize)], slices: &Slices<'_>) -> Generation {
+    /// Unique directions per level, in generation (raster) order: k, then j, then i; level L
+    /// holds the slices k that are multiples of `strides[L]`.
+    fn generate(&self, grids: &[(usize, usize)], strides: &[usize], slices: &Slices<'_>) -> Generation {
         let mut g = Generation::default();
         let (fine_n, fine_m) = slices.fine;
         for (level0, &(n, m)) in grids.iter().enumerate() {
             let start = g.dirs.len();
-            for (k, warp) in slices.warps.iter().enumerate() {
+            let stride = strides.get(level0).copied().unwrap_or(1).max(1);
+            for (k, warp) in slices.warps.iter().enumerate().step_by(stride) {
                 let wi = from_spherical(slices.thetas[k], 0.0);
                 for j in 0..m {
                     for i in 0..n {
@@ -321,6 +325,19 @@ impl Planner {
             cumulative_raster_seconds: cursor.raster_seconds,
         })
     }
+}
+
+/// The elevations and warps of each level stride other than 1 (`Plan::incoming_subsets`).
+fn subsets(strides: &[usize], thetas: &[f64], warps: &[SliceWarp]) -> Vec<(usize, Vec<f64>, Vec<SliceWarp>)> {
+    let mut out: Vec<(usize, Vec<f64>, Vec<SliceWarp>)> = Vec::new();
+    for &s in strides.iter().filter(|&&s| s > 1) {
+        if out.iter().all(|o| o.0 != s) {
+            let t = thetas.iter().copied().step_by(s).collect();
+            let w = warps.iter().step_by(s).cloned().collect();
+            out.push((s, t, w));
+        }
+    }
+    out
 }
 
 /// The warp's direction at `u`, or, if it has none, at the first of `U_NUDGE_STEPS` points from

@@ -299,6 +299,87 @@ fn bad_configs_are_refused() {
     }
 }
 
+/// A level may add incoming elevations: levels 1-2 measure every other elevation of the deepest
+/// level's 15, level 3 the new ones at level 2's grid (their slices whole, the old ones reused),
+/// and each level reconstructs from its own elevations, finitely.
+#[test]
+fn a_level_may_add_incoming_elevations_between_the_old_ones() {
+    for strategy in [Strategy::Mixture, Strategy::Uniform] {
+        let planner = Planner::new(default_instrument(), ggx_estimate(0.1, 0.2)).expect("planner");
+        let config = PlanConfig {
+            strategy,
+            k: 15,
+            grids: vec![(2, 2), (4, 4), (4, 4)],
+            incoming: vec![8, 8, 15],
+            ..PlanConfig::default()
+        };
+        let plan = planner.plan(&config).expect("plan");
+        let eight = planner
+            .plan(&PlanConfig {
+                strategy,
+                grids: vec![(2, 2), (4, 4)],
+                ..PlanConfig::default()
+            })
+            .expect("plan");
+        // Levels 1-2 are the 8-elevation plan's (the same directions, in the same levels).
+        for l in 0..2 {
+            assert_eq!(
+                plan.levels[l].cumulative_directions, eight.levels[l].cumulative_directions,
+                "{strategy}"
+            );
+        }
+        for d in &plan.directions {
+            assert_eq!(d.level == 3, d.k % 2 == 1, "{strategy}: {d:?}");
+        }
+        // A new elevation's slice holds the whole 4x4 grid, as in a one-level 15-elevation plan.
+        let whole = planner
+            .plan(&PlanConfig {
+                strategy,
+                k: 15,
+                grids: vec![(4, 4)],
+                ..PlanConfig::default()
+            })
+            .expect("plan");
+        let on = |p: &Plan, k: usize| p.directions.iter().filter(|d| d.k == k).count();
+        assert_eq!(on(&plan, 1), on(&whole, 1), "{strategy}");
+        let truth = crate::brdf::parse_material("ggx:alpha=0.1,diffuse=0.2,specular=1").expect("truth");
+        let values = plan.measure(truth.as_ref());
+        for l in &plan.levels {
+            let nodes = plan.level_nodes(l.level).expect("level");
+            let want = if l.level < 3 { 8 } else { 15 };
+            assert_eq!((nodes.thetas.len(), nodes.slices.len()), (want, want));
+            assert!(nodes.measured.iter().all(|m| m.0 < want));
+            assert_eq!(nodes.measured.len(), l.cumulative_directions);
+            let rec = reconstruct(&plan, l.level, &values).expect("reconstruct");
+            let wi = from_spherical(0.3, 0.0);
+            let v = rec.eval(wi, from_spherical(0.3, std::f64::consts::PI));
+            assert!(
+                v.is_finite() && v.min_element() >= 0.0,
+                "{strategy} level {}: {v}",
+                l.level
+            );
+        }
+    }
+    // Elevations that do not nest (8 -> 16), a count per level missing, a last count not k, a
+    // level that neither refines the grid nor adds elevations.
+    let planner = Planner::new(default_instrument(), ggx_estimate(0.2, 0.1)).expect("planner");
+    for (k, incoming, grids) in [
+        (16, vec![8, 16], vec![(2, 2), (4, 4)]),
+        (15, vec![15], vec![(2, 2), (4, 4)]),
+        (15, vec![8, 8], vec![(2, 2), (4, 4)]),
+        (15, vec![8, 8], vec![(4, 4), (4, 4)]),
+        (8, vec![15, 8], vec![(2, 2), (4, 4)]),
+    ] {
+        let r = planner.plan(&PlanConfig {
+            k,
+            grids: grids.clone(),
+            incoming: incoming.clone(),
+            ..PlanConfig::default()
+        });
+        assert!(r.is_err(), "{k} {incoming:?} {grids:?}");
+    }
+}
+
 /// Mean |log(1 + f cos) - log(1 + f_rec cos)| over random pairs with theta_i between the slices.
 fn log_err_between_slices(truth: &dyn Material, rec: &dyn Material) -> f64 {
     let mut rng = ChaCha8Rng::seed_from_u64(11);

@@ -223,6 +223,7 @@ impl ScanRecord {
             spacing,
             k: self.incoming,
             grids: crate::plan::square_grids(self.max_level),
+            incoming: Vec::new(),
         })
     }
 

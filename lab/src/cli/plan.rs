@@ -190,6 +190,10 @@ pub struct ClosedLoopArgs {
     /// The environment-lit scene the env FLIP is scored in (noise-free quadrature render).
     #[arg(long, default_value = "examples/sphere-sky.toml")]
     pub env_scene: PathBuf,
+    /// Lab trials beside the loop and the uniform grid (repeatable): `reseed` (the default when
+    /// none is given), `schedule:KxN,KxN,...` (incoming elevations x outgoing grid per level), `none`.
+    #[arg(long = "trial")]
+    pub trials: Vec<String>,
     #[arg(short, long)]
     pub output: PathBuf,
 }
@@ -197,11 +201,26 @@ pub struct ClosedLoopArgs {
 pub fn run_closed_loop(args: ClosedLoopArgs) -> Result<()> {
     let instrument = gonio::instrument::load_or_default(args.instrument.as_deref())?;
     let max_level = level_of(args.max_grid, "--max-grid")?;
+    // The regenerate line repeats the materials and trials given.
+    let given: Vec<String> = args.materials.iter().map(|m| format!(" --material {m}")).collect();
     let materials = if args.materials.is_empty() {
         args.preset.materials()
     } else {
         args.materials
     };
+    let trials = if args.trials.is_empty() {
+        vec![tradeoff::closed_loop::Trial::Reseed]
+    } else {
+        args.trials
+            .iter()
+            .filter(|t| t.as_str() != "none")
+            .map(|t| tradeoff::closed_loop::Trial::parse(t).map_err(anyhow::Error::msg))
+            .collect::<Result<Vec<_>>>()?
+    };
+    let trial_args: String = given
+        .into_iter()
+        .chain(args.trials.iter().map(|t| format!(" --trial {t}")))
+        .collect();
     let source = match args.rows.as_deref() {
         Some(csv) => tradeoff::closed_loop::RowSource::Csv(csv),
         None => tradeoff::closed_loop::RowSource::Simulate {
@@ -211,10 +230,11 @@ pub fn run_closed_loop(args: ClosedLoopArgs) -> Result<()> {
             env_scene: Box::new(
                 gonio::render::Scene::load(&args.env_scene).with_context(|| "--env-scene".to_string())?,
             ),
+            trials: &trials,
         },
     };
     let bar = indicatif::ProgressBar::new(materials.len() as u64);
     with_progress(bar, |progress| {
-        tradeoff::closed_loop::run(args.preset, source, &args.output, progress)
+        tradeoff::closed_loop::run(args.preset, source, &args.output, &trial_args, progress)
     })
 }

@@ -244,6 +244,7 @@ pub fn run(
                 spacing: cfg.spacing,
                 k: cfg.k,
                 grids: super::square_grids(cfg.max_level),
+                incoming: Vec::new(),
             };
             let e = evaluate(
                 &mut scorer,

@@ -77,6 +77,66 @@ pub const ENV_SIZE: usize = closed_loop::ESTIMATE_SIZE;
 /// Instrument minutes the real-materials goal allows (issue 25).
 pub const GOAL_MINUTES: f64 = 10.0;
 
+/// A lab trial run beside the product's loop and the uniform grid.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Trial {
+    /// Levels 2.. planned from level 1's fit (`reseed`), rows `reseed`.
+    Reseed,
+    /// Per-level incoming elevations and outgoing N x N, [(K, N)] (`PlanConfig::incoming`), for
+    /// the product's plan and the uniform grid: rows `adaptive K1xN1,...` and `uniform K1xN1,...`.
+    Schedule(Vec<(usize, usize)>),
+}
+
+impl Trial {
+    /// `reseed` or `schedule:8x2,8x4,8x8,15x8` (K x N per level).
+    pub fn parse(s: &str) -> Result<Trial, String> {
+        if s == "reseed" {
+            return Ok(Trial::Reseed);
+        }
+        let list = s
+            .strip_prefix("schedule:")
+            .ok_or_else(|| format!("trial {s:?}: expected reseed or schedule:KxN,KxN,..."))?;
+        let levels = list
+            .split(',')
+            .map(|l| {
+                let (k, n) = l.split_once('x')?;
+                Some((k.trim().parse().ok()?, n.trim().parse().ok()?))
+            })
+            .collect::<Option<Vec<(usize, usize)>>>()
+            .ok_or_else(|| format!("trial {s:?}: a level is not KxN"))?;
+        let config = schedule_config(Strategy::Auto, &levels);
+        gonio::plan::check_levels(&config.grids, &config.incoming, config.k).map_err(|e| e.to_string())?;
+        Ok(Trial::Schedule(levels))
+    }
+
+    /// The rows' strategy name of this trial for the product's plan (`auto`) or the uniform grid.
+    fn label(&self, strategy: Strategy) -> String {
+        match self {
+            Trial::Reseed => "reseed".into(),
+            Trial::Schedule(levels) => {
+                let name = if strategy == Strategy::Uniform {
+                    "uniform"
+                } else {
+                    "adaptive"
+                };
+                let list: Vec<String> = levels.iter().map(|(k, n)| format!("{k}x{n}")).collect();
+                format!("{name} {}", list.join(","))
+            }
+        }
+    }
+}
+
+/// The plan config of a (K, N) per level schedule.
+fn schedule_config(strategy: Strategy, levels: &[(usize, usize)]) -> PlanConfig {
+    PlanConfig {
+        strategy,
+        grids: levels.iter().map(|&(_, n)| (n, n)).collect(),
+        incoming: levels.iter().map(|&(k, _)| k).collect(),
+        k: levels.last().map_or(1, |l| l.0),
+        ..PlanConfig::default()
+    }
+}
+
 /// A level's assessment with the report's own scores of its reconstruction (log_err, env FLIP).
 type Scored = (LevelAssessment, f64, f64);
 
@@ -112,6 +172,7 @@ pub fn run_rows(
     instrument: &InstrumentConfig<f64>,
     max_level: usize,
     mut env_scene: Scene,
+    trials: &[Trial],
     progress: &dyn Fn(&str),
 ) -> Result<Vec<LoopRow>, PlanError> {
     let encoder = Encoder::shipped(ModelKind::Ggx).map_err(|e| PlanError::Invalid(e.to_string()))?;
@@ -150,28 +211,6 @@ pub fn run_rows(
         let uniform: Vec<usize> = per[1].iter().map(|a| a.0.directions).collect();
         rows.extend(rows_of(spec, "adaptive", &per[0], &uniform));
         rows.extend(rows_of(spec, "uniform", &per[1], &uniform));
-        // Levels 2.. planned from level 1's fit (`reseed`): kept only where every level's count is
-        // within the uniform grid's; otherwise the photo's plan goes on (the rows say which).
-        let (first, config) = photo_plan.ok_or_else(|| PlanError::Invalid("no photo plan".into()))?;
-        let level1 = gonio::reconstruct::reconstruct(&first, 1, &first.measure(truth.as_ref()))?;
-        let next = reseed::replan(instrument, &config, level1.prior())?;
-        let reseeded = next.as_ref().and_then(|next| reseed::Reseeded::new(&first, next));
-        let (label, levels) = match reseeded {
-            Some(r)
-                if r.levels()
-                    .iter()
-                    .zip(&uniform)
-                    .all(|(l, u)| l.cumulative_directions <= *u) =>
-            {
-                let values: Vec<_> = r.pairs().iter().map(|&(wi, wo)| truth.eval(wi, wo)).collect();
-                (
-                    "reseed",
-                    assess_levels(&r, &r.levels(), &values, spec, &mut scorer, &truth_env)?,
-                )
-            }
-            _ => ("reseed (photo plan)", per[0].clone()),
-        };
-        rows.extend(rows_of(spec, "reseed", &levels, &uniform));
         let line = |levels: &[Scored]| {
             levels
                 .iter()
@@ -179,14 +218,65 @@ pub fn run_rows(
                 .collect::<Vec<_>>()
                 .join(" ")
         };
-        progress(&format!(
-            "{spec}: point/env FLIP adaptive {}, uniform {}, {label} {}",
-            line(&per[0]),
-            line(&per[1]),
-            line(&levels)
-        ));
+        let mut lines = vec![format!("adaptive {}, uniform {}", line(&per[0]), line(&per[1]))];
+        for trial in trials {
+            let runs: Vec<(String, Vec<Scored>)> = match trial {
+                Trial::Reseed => {
+                    let (first, config) = photo_plan
+                        .as_ref()
+                        .ok_or_else(|| PlanError::Invalid("no photo plan".into()))?;
+                    let levels = reseeded_levels(first, config, instrument, &uniform, spec, &mut scorer, &truth_env)?;
+                    vec![(trial.label(Strategy::Auto), levels.unwrap_or_else(|| per[0].clone()))]
+                }
+                Trial::Schedule(schedule) => {
+                    let mut out = Vec::new();
+                    for strategy in [Strategy::Auto, Strategy::Uniform] {
+                        let plan =
+                            Planner::new(*instrument, estimate.clone())?.plan(&schedule_config(strategy, schedule))?;
+                        let values = plan.measure(truth.as_ref());
+                        let levels = assess_levels(&plan, &plan.levels, &values, spec, &mut scorer, &truth_env)?;
+                        out.push((trial.label(strategy), levels));
+                    }
+                    out
+                }
+            };
+            for (label, levels) in runs {
+                lines.push(format!("{label} {}", line(&levels)));
+                rows.extend(rows_of(spec, &label, &levels, &uniform));
+            }
+        }
+        progress(&format!("{spec}: point/env FLIP {}", lines.join("; ")));
     }
     Ok(rows)
+}
+
+/// Levels 2.. planned from level 1's fit (`reseed`): None (the photo's plan goes on) unless every
+/// level's count is within the uniform grid's.
+fn reseeded_levels(
+    first: &gonio::plan::Plan,
+    config: &PlanConfig,
+    instrument: &InstrumentConfig<f64>,
+    uniform: &[usize],
+    spec: &str,
+    scorer: &mut Scorer,
+    truth_env: &gonio::render::Image,
+) -> Result<Option<Vec<Scored>>, PlanError> {
+    let truth = parse_material(spec)?;
+    let level1 = gonio::reconstruct::reconstruct(first, 1, &first.measure(truth.as_ref()))?;
+    let next = reseed::replan(instrument, config, level1.prior())?;
+    let Some(r) = next.as_ref().and_then(|next| reseed::Reseeded::new(first, next)) else {
+        return Ok(None);
+    };
+    let within = r
+        .levels()
+        .iter()
+        .zip(uniform)
+        .all(|(l, u)| l.cumulative_directions <= *u);
+    if !within {
+        return Ok(None);
+    }
+    let values: Vec<_> = r.pairs().iter().map(|&(wi, wo)| truth.eval(wi, wo)).collect();
+    assess_levels(&r, &r.levels(), &values, spec, scorer, truth_env).map(Some)
 }
 
 /// Assess every level of `levels` (as `closed_loop::run` with `StopRule::Depth`), scoring each
@@ -325,19 +415,32 @@ pub fn summary(rows: &[LoopRow], title: &str, regenerate: &str) -> String {
         );
     }
     equal_directions(&mut md, rows, &materials, "adaptive", "closed loop");
-    if rows.iter().any(|r| r.strategy == "reseed") {
-        equal_directions(
-            &mut md,
-            rows,
-            &materials,
-            "reseed",
-            "re-seeded from level 1's fit (lab trial)",
-        );
+    for strategy in strategies(rows)
+        .into_iter()
+        .filter(|s| *s != "adaptive" && *s != "uniform")
+    {
+        let title = if strategy == "reseed" {
+            "re-seeded from level 1's fit (lab trial)".to_string()
+        } else {
+            format!("{strategy} (lab trial, incoming K x outgoing N per level)")
+        };
+        equal_directions(&mut md, rows, &materials, strategy, &title);
     }
     monotonicity(&mut md, rows, &materials);
     within_goal_minutes(&mut md, rows, &materials);
     per_level_table(&mut md, rows);
     md
+}
+
+/// The rows' strategies in order of first appearance.
+fn strategies(rows: &[LoopRow]) -> Vec<&str> {
+    let mut out: Vec<&str> = Vec::new();
+    for r in rows {
+        if !out.contains(&r.strategy.as_str()) {
+            out.push(&r.strategy);
+        }
+    }
+    out
 }
 
 /// One error metric of a row.
@@ -399,7 +502,7 @@ fn monotonicity(md: &mut String, rows: &[LoopRow], materials: &[&str]) {
         "\n## Monotonicity: error of level L / level L-1 (goal <= 1.05 on every material)\n\n\
          | strategy | metric | largest ratio | where | steps above 1.05 |\n|---|---|---|---|---|"
     );
-    for strategy in ["adaptive", "uniform", "reseed"] {
+    for strategy in strategies(rows) {
         for (name, metric) in METRICS {
             let (mut worst, mut at, mut above, mut steps) = (0.0f64, String::new(), 0, 0);
             for m in materials {
@@ -437,7 +540,7 @@ fn within_goal_minutes(md: &mut String, rows: &[LoopRow], materials: &[&str]) {
          | material | strategy | level | directions | min | point FLIP | env FLIP | brdf_log_err |\n|---|---|---|---|---|---|---|---|"
     );
     for m in materials {
-        for strategy in ["adaptive", "uniform"] {
+        for strategy in strategies(rows) {
             let best = rows
                 .iter()
                 .filter(|r| r.material == *m && r.strategy == strategy && r.minutes <= GOAL_MINUTES)
@@ -494,16 +597,19 @@ pub enum RowSource<'a> {
         instrument: &'a InstrumentConfig<f64>,
         max_level: usize,
         env_scene: Box<Scene>,
+        trials: &'a [Trial],
     },
     /// An earlier run's `closed-loop.csv`.
     Csv(&'a Path),
 }
 
 /// Run the report into `dir` (`closed-loop.csv`, `closed-loop.md`); returns the markdown.
+/// `trial_args`: the command line's `--material` and `--trial` options as given (the regenerate line repeats them).
 pub fn run(
     preset: LoopPreset,
     source: RowSource<'_>,
     dir: &Path,
+    trial_args: &str,
     progress: &dyn Fn(&str),
 ) -> Result<String, PlanError> {
     let rows = match source {
@@ -513,7 +619,8 @@ pub fn run(
             instrument,
             max_level,
             env_scene,
-        } => run_rows(materials, instrument, max_level, *env_scene, progress)?,
+            trials,
+        } => run_rows(materials, instrument, max_level, *env_scene, trials, progress)?,
     };
     std::fs::create_dir_all(dir).map_err(|e| PlanError::Invalid(format!("{}: {e}", dir.display())))?;
     write(dir, "closed-loop.csv", &csv(&rows)?)?;
@@ -521,7 +628,7 @@ pub fn run(
     let md = summary(
         &rows,
         &name,
-        &format!("gonio-lab closed-loop --preset {name} -o {}", dir.display()),
+        &format!("gonio-lab closed-loop --preset {name}{trial_args} -o {}", dir.display()),
     );
     write(dir, "closed-loop.md", md.as_bytes())?;
     Ok(md)
@@ -550,6 +657,47 @@ mod tests {
             brdf_log_err: Some(2.0 * error),
             env_flip: Some(4.0 * error),
         }
+    }
+
+    /// A schedule trial parses K x N per level and is refused when its elevations do not nest.
+    #[test]
+    fn trials_parse_and_refuse_schedules_that_do_not_nest() {
+        assert_eq!(Trial::parse("reseed"), Ok(Trial::Reseed));
+        assert_eq!(
+            Trial::parse("schedule:8x2,8x4,15x4"),
+            Ok(Trial::Schedule(vec![(8, 2), (8, 4), (15, 4)]))
+        );
+        assert_eq!(
+            Trial::Schedule(vec![(8, 2), (15, 2)]).label(Strategy::Uniform),
+            "uniform 8x2,15x2"
+        );
+        for bad in [
+            "schedule:8x2,16x4",
+            "schedule:8x2,8x2",
+            "schedule:8x",
+            "grid:8x2",
+            "schedule:",
+        ] {
+            assert!(Trial::parse(bad).is_err(), "{bad}");
+        }
+    }
+
+    /// A trial's rows get their own equal-directions table and monotonicity rows.
+    #[test]
+    fn trial_rows_are_summarised_beside_the_loop() {
+        let mut rows = vec![
+            row("a", "adaptive", 1, 0.02),
+            row("a", "uniform", 1, 0.01),
+            row("a", "adaptive 8x2", 1, 0.005),
+        ];
+        rows.push(row("a", "adaptive 8x2", 2, 0.01));
+        let md = summary(&rows, "test", "cmd");
+        assert!(md.contains("## Equal directions: adaptive 8x2 (lab trial"), "{md}");
+        assert!(md.contains("| 1 | 0.500 | 0.500 |"), "{md}");
+        assert!(
+            md.contains("| adaptive 8x2 | point FLIP | 2.000 | a level 2 | 1 of 1 |"),
+            "{md}"
+        );
     }
 
     /// The equal-directions ratios are geometric means over materials with the worst beside them,

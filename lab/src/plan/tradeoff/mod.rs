@@ -379,6 +379,7 @@ pub fn run(
                 spacing: cfg.spacing,
                 k: cfg.k,
                 grids: cfg.grids.clone(),
+                incoming: Vec::new(),
             };
             let t0 = Instant::now();
             let plan = Planner::new(*instrument, estimate.clone())?.plan(&config)?;

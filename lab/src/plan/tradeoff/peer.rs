@@ -47,6 +47,7 @@ impl Peer {
             spacing: cfg.spacing,
             k: cfg.k,
             grids: cfg.grids.clone(),
+            incoming: Vec::new(),
         })?;
         let mut counts: Vec<(usize, usize)> = SMALL_COUNTS
             .iter()
