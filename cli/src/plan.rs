@@ -132,6 +132,7 @@ pub fn run_plan(args: PlanArgs) -> Result<()> {
         spacing: args.spacing,
         k: args.incoming,
         grids: gonio::plan::square_grids(max_level),
+        incoming: Vec::new(),
     };
     let planner = Planner::new(instrument, estimate.clone())?;
     let t0 = std::time::Instant::now();
