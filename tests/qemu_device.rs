@@ -50,6 +50,18 @@ struct Device {
 }
 
 impl Device {
+    /// An open port whose device answered our Hello with our protocol.
+    fn greeted() -> Self {
+        let mut dev = Device::open();
+        let session = session_id();
+        assert_eq!(
+            dev.hello(Hello::ours(session)),
+            Hello::ours(session),
+            "the image speaks another protocol"
+        );
+        dev
+    }
+
     fn open() -> Self {
         let path = env("GONIO_QEMU_PORT");
         let port = SerialTransport::open(&path).unwrap_or_else(|e| panic!("cannot open {path}: {e}"));
@@ -219,13 +231,7 @@ fn qemu_journal() {
     let plan = gonio::plan::file::decode_plan(&std::fs::read(&plan_path).expect("plan file")).expect("plan");
     let n = u32::try_from(plan.len()).expect("plan size");
 
-    let mut dev = Device::open();
-    let session = session_id();
-    assert_eq!(
-        dev.hello(Hello::ours(session)),
-        Hello::ours(session),
-        "the image speaks another protocol"
-    );
+    let mut dev = Device::greeted();
     let status = dev.status();
 
     // Every direction journaled exactly once.
@@ -285,13 +291,7 @@ fn burst(dev: &mut Device) {
 #[ignore = "needs the QEMU image: .ci/qemu-scan runs it"]
 fn qemu_refusals() {
     let instrument = PathBuf::from(env("GONIO_QEMU_INSTRUMENT"));
-    let mut dev = Device::open();
-    let session = session_id();
-    assert_eq!(
-        dev.hello(Hello::ours(session)),
-        Hello::ours(session),
-        "the image speaks another protocol"
-    );
+    let mut dev = Device::greeted();
     let status = dev.status();
     assert_eq!(status.last_fault, None, "device status before the checks: {status:?}");
 
