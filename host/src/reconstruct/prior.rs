@@ -3,7 +3,6 @@
 //! The product fits `TwoLobesPrior`; a trial is another `Prior` (docs/planner.md, "Adding a prior").
 
 use crate::brdf::fit_lobes::{self, DiffuseBound, LobeFresnel};
-use crate::brdf::spec::Analytic;
 use crate::brdf::Material;
 use glam::DVec3;
 use std::sync::Arc;
@@ -86,13 +85,13 @@ impl Prior for NoPrior {
 /// The model a prior fitted to a level's measurements.
 #[derive(Clone, Debug)]
 pub enum FittedPrior {
-    Lobe(Analytic),
+    /// The product's model.
     TwoLobes(fit_lobes::TwoLobes),
-    /// Any other model (a trial's), with its one-line description.
+    /// A lab trial's model, with its one-line description (the product fits only two lobes).
     Other(OtherModel),
 }
 
-/// A fitted model that is neither analytic nor two lobes, e.g. a basis fit's table.
+/// A fitted model other than two lobes, e.g. one analytic lobe or a basis fit's table.
 #[derive(Clone)]
 pub struct OtherModel {
     pub model: Arc<dyn Material>,
@@ -109,16 +108,14 @@ impl FittedPrior {
     /// The fitted model's value (BRDF, 1/sr), without the grid's residual.
     pub fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
         match self {
-            FittedPrior::Lobe(m) => m.eval(wi, wo),
             FittedPrior::TwoLobes(m) => m.eval(wi, wo),
             FittedPrior::Other(m) => m.model.eval(wi, wo),
         }
     }
 
-    /// One line for reports (a material spec for one lobe).
+    /// One line for reports.
     pub fn describe(&self) -> String {
         match self {
-            FittedPrior::Lobe(m) => m.to_spec(),
             FittedPrior::TwoLobes(m) => m.describe(),
             FittedPrior::Other(m) => m.describe.clone(),
         }

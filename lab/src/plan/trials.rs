@@ -5,7 +5,8 @@ use super::nielsen::selected;
 use super::photo_samples::{self, PhotoSamples};
 use gonio::brdf::fit::{fit_samples, FitModel};
 use gonio::brdf::fit_lobes::{fit_two_lobes_bounded, DiffuseBound, LobeFresnel};
-use gonio::reconstruct::{FittedPrior, LevelSamples, NoPrior, Prior, TwoLobesPrior};
+use gonio::reconstruct::{FittedPrior, LevelSamples, NoPrior, OtherModel, Prior, TwoLobesPrior};
+use std::sync::Arc;
 
 /// The names `--prior` takes: the product's first.
 pub const PRIOR_NAMES: [&str; 8] = [
@@ -60,9 +61,11 @@ impl Prior for OneLobePrior {
          and the fitted lobe is evaluated at the query)"
     }
     fn fit(&self, s: &LevelSamples<'_>) -> Option<FittedPrior> {
-        Some(FittedPrior::Lobe(
-            fit_samples(s.pairs.clone(), s.values, &s.weights, FitModel::Ggx).model,
-        ))
+        let lobe = fit_samples(s.pairs.clone(), s.values, &s.weights, FitModel::Ggx).model;
+        Some(FittedPrior::Other(OtherModel {
+            describe: lobe.to_spec(),
+            model: Arc::new(lobe),
+        }))
     }
 }
 
