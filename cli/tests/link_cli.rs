@@ -13,19 +13,7 @@ const N: usize = 60;
 
 fn reference(fx: &Fixture) -> Vec<String> {
     let out = fx.path("reference");
-    let o = run(&[
-        "measure",
-        "--sim",
-        s(&fx.scene),
-        "--plan",
-        s(&fx.plan),
-        "--instrument",
-        s(&fx.instrument),
-        "-o",
-        s(&out),
-        "--speedup",
-        "10000",
-    ]);
+    let o = fx.measure_sim(&fx.plan, &out);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let rows = csv_without_time(&out.join("measurements.csv"));
     assert_eq!(rows.len(), N);
@@ -122,19 +110,7 @@ fn a_limit_fault_mid_scan_is_reported_with_the_pose_and_the_journal_keeps_what_c
         "[effects]\nlimit_fault = { axis = \"detector\", after_readings = 7 }\n",
     );
     let out = fx.path("fault");
-    let o = run(&[
-        "measure",
-        "--sim",
-        s(&fx.scene),
-        "--plan",
-        s(&fx.plan),
-        "--instrument",
-        s(&fx.instrument),
-        "-o",
-        s(&out),
-        "--speedup",
-        "10000",
-    ]);
+    let o = fx.measure_sim(&fx.plan, &out);
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success());
     assert!(stderr.contains("LimitSwitch(Detector)"), "{stderr}");
@@ -369,19 +345,7 @@ fn an_unreachable_direction_is_reported_by_its_plan_index() {
     let bad_plan = fx.path("unreachable.bin");
     gonio::plan::file::write_plan_file(&bad_plan, &dirs).unwrap();
     let out = fx.path("out");
-    let o = run(&[
-        "measure",
-        "--sim",
-        s(&fx.scene),
-        "--plan",
-        s(&bad_plan),
-        "--instrument",
-        s(&fx.instrument),
-        "-o",
-        s(&out),
-        "--speedup",
-        "10000",
-    ]);
+    let o = fx.measure_sim(&bad_plan, &out);
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success());
     assert!(

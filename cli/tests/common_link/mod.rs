@@ -73,6 +73,23 @@ impl Fixture {
         self.dir.path().join(name)
     }
 
+    /// `gonio measure` of `plan` on this fixture's virtual gonio into `out`, 10,000x faster than real time.
+    pub fn measure_sim(&self, plan: &Path, out: &Path) -> Output {
+        run(&[
+            "measure",
+            "--sim",
+            s(&self.scene),
+            "--plan",
+            s(plan),
+            "--instrument",
+            s(&self.instrument),
+            "-o",
+            s(out),
+            "--speedup",
+            "10000",
+        ])
+    }
+
     pub fn instrument_config(&self) -> gonio_shared::InstrumentConfig<f64> {
         gonio::instrument::load(&self.instrument).unwrap()
     }
