@@ -7,5 +7,6 @@ pub use gonio::plan::*;
 pub mod nielsen;
 pub mod photo_samples;
 pub mod report;
+pub mod slice_subset;
 pub mod tradeoff;
 pub mod trials;
