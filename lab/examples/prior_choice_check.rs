@@ -10,6 +10,13 @@
 //! materials of the picked reconstruction's brdf_log_err and liu_log_err against the two lobes',
 //! per level, and the best setting (lowest mean over levels of brdf_log_err and liu_log_err).
 //!
+//! Then the guard of `selected::GUARD` (the `two-lobes-or-pca-guarded` trial) at the shipped
+//! trial's folds, ridge and threshold: every bound on the basis fit's in-sample residual (RMS and
+//! relative, log-mapped space) with and without the majority-of-folds rule, and the setting the
+//! rule below picks: among the guards whose summed log ratio (both metrics, three counts) is at
+//! most `GUARD_TOLERANCE` above the unguarded trial's, the one that picks the basis least often
+//! (the most cautious guard that costs the training materials nothing).
+//!
 //!     cargo run --release -p gonio-lab --example prior_choice_check [--every N]
 //!
 //! `--every N` takes every N-th training material (a quicker look); the committed figures use N = 1.
@@ -22,7 +29,9 @@ use gonio::plan::predict::{log_err_over, Scorer};
 use gonio::plan::{PlanConfig, Planner};
 use gonio::reconstruct::{reconstruct_with, FittedPrior, LevelSamples, Prior, TwoLobesPrior};
 use gonio_lab::plan::nielsen::basis::{tabulate, Basis};
-use gonio_lab::plan::nielsen::selected::{cross_validate, PcaModel, PcaPrior};
+use gonio_lab::plan::nielsen::selected::{
+    cross_validate_folds, Guard, PcaModel, PcaPrior, SpanResidual, FOLDS, PCA_RIDGE, THRESHOLD,
+};
 use gonio_lab::plan::nielsen::training_names;
 use gonio_lab::plan::tradeoff::{capture_photo, liu::liu_pairs, photo_estimate};
 use std::sync::{Arc, Mutex};
@@ -33,12 +42,19 @@ const CV_FOLDS: [usize; 3] = [3, 5, 10];
 const RIDGES: [f64; 6] = [1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3];
 const THRESHOLDS: [f64; 6] = [0.9, 1.0, 1.1, 1.25, 1.5, 2.0];
 const GRIDS: [(usize, usize); 3] = [(2, 2), (4, 4), (8, 8)];
+const MAX_RMS: [f64; 11] = [0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0, f64::INFINITY];
+const MAX_RELATIVE: [f64; 10] = [0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, f64::INFINITY];
+/// Summed log ratio a guard may cost over the unguarded trial (six cells: ~0.1 % per cell).
+const GUARD_TOLERANCE: f64 = 0.005;
 
-/// Fits the two lobes and records the level's cross-validated errors for every setting.
+/// Per fold count, per fold: (two lobes, per ridge).
+type Folds = Vec<Vec<(f64, Vec<f64>)>>;
+
+/// Fits the two lobes and records the level's cross-validated errors for every setting, and the
+/// basis fit's in-sample residual at `PCA_RIDGE`.
 struct Recorder {
     model: Arc<PcaModel>,
-    /// Per fold count: (two lobes, per ridge).
-    cv: Mutex<Vec<(f64, Vec<f64>)>>,
+    cv: Mutex<(Folds, Option<SpanResidual>)>,
 }
 
 impl Prior for Recorder {
@@ -48,9 +64,9 @@ impl Prior for Recorder {
     fn fit(&self, s: &LevelSamples<'_>) -> Option<FittedPrior> {
         let cv = CV_FOLDS
             .iter()
-            .map(|&k| cross_validate(&self.model, s, k, &RIDGES))
+            .map(|&k| cross_validate_folds(&self.model, s, k, &RIDGES))
             .collect();
-        *self.cv.lock().ok()? = cv;
+        *self.cv.lock().ok()? = (cv, self.model.span_residual(&s.pairs, s.values, PCA_RIDGE));
         TwoLobesPrior.fit(s)
     }
 }
@@ -60,7 +76,21 @@ struct Case {
     level: usize,
     lobes: (f64, f64),
     pca: Vec<(f64, f64)>,
+    /// Per fold count: totals (two lobes, per ridge).
     cv: Vec<(f64, Vec<f64>)>,
+    /// Per fold count, per fold.
+    folds: Folds,
+    residual: Option<SpanResidual>,
+}
+
+/// Totals over folds.
+fn totals(folds: &[(f64, Vec<f64>)]) -> (f64, Vec<f64>) {
+    let mut total = (0.0, vec![0.0; RIDGES.len()]);
+    for (lobes, pca) in folds {
+        total.0 += lobes;
+        total.1.iter_mut().zip(pca).for_each(|(t, e)| *t += e);
+    }
+    total
 }
 
 fn main() -> anyhow::Result<()> {
@@ -104,7 +134,7 @@ fn main() -> anyhow::Result<()> {
             for l in &plan.levels {
                 let recorder = Recorder {
                     model: model.clone(),
-                    cv: Mutex::new(Vec::new()),
+                    cv: Mutex::new((Vec::new(), None)),
                 };
                 let scores = |rec: &dyn Material| (scorer.log_err(truth, rec), log_err_over(&liu, truth, rec));
                 let lobes = scores(&reconstruct_with(&plan, l.level, &measured, &recorder)?);
@@ -118,12 +148,14 @@ fn main() -> anyhow::Result<()> {
                         Ok(scores(&reconstruct_with(&plan, l.level, &measured, &prior)?))
                     })
                     .collect::<anyhow::Result<Vec<_>>>()?;
-                let cv = recorder.cv.into_inner().map_err(|_| anyhow::anyhow!("poisoned"))?;
+                let (folds, residual) = recorder.cv.into_inner().map_err(|_| anyhow::anyhow!("poisoned"))?;
                 cases.push(Case {
                     level: l.level,
                     lobes,
                     pca,
-                    cv,
+                    cv: folds.iter().map(|f| totals(f)).collect(),
+                    folds,
+                    residual,
                 });
             }
             eprintln!("{} done ({:.0} s)", names[m], t0.elapsed().as_secs_f64());
@@ -194,4 +226,88 @@ fn report(cases: &[Case]) {
         }
     }
     println!("\nbest: {}", best.1);
+    report_guard(cases);
+}
+
+/// The guard grid at the trial's folds, ridge and threshold, and the pick (see the module doc).
+fn report_guard(cases: &[Case]) {
+    let f = CV_FOLDS.iter().position(|&k| k == FOLDS).expect("FOLDS in CV_FOLDS");
+    let r = RIDGES
+        .iter()
+        .position(|&x| x == PCA_RIDGE)
+        .expect("PCA_RIDGE in RIDGES");
+    let pick = |g: Guard| {
+        move |c: &Case| {
+            let per_fold: Vec<(f64, f64)> = c.folds[f].iter().map(|(l, p)| (*l, p[r])).collect();
+            (c.cv[f].1[r] < THRESHOLD * c.cv[f].0 && g.allows(c.residual, &per_fold)).then_some(r)
+        }
+    };
+    // Where the unguarded trial picks the basis: residuals, and whether the pick helped brdf_log_err.
+    println!("\nunguarded picks of the basis (level, rms, relative, pca/lobes brdf_log_err):");
+    let open = Guard {
+        max_rms: f64::INFINITY,
+        max_relative: f64::INFINITY,
+        majority: false,
+    };
+    let mut rows: Vec<(usize, SpanResidual, f64)> = cases
+        .iter()
+        .filter(|c| pick(open)(c).is_some())
+        .map(|c| (c.level, c.residual.unwrap_or_default(), c.pca[r].0 / c.lobes.0))
+        .collect();
+    rows.sort_by(|a, b| a.1.rms.total_cmp(&b.1.rms));
+    for (level, res, ratio) in &rows {
+        println!("  {level} {:.3} {:.3} {ratio:.3}", res.rms, res.relative);
+    }
+    let mut all: Vec<f64> = cases.iter().filter_map(|c| c.residual.map(|r| r.rms)).collect();
+    all.sort_by(f64::total_cmp);
+    let q = |p: f64| {
+        all.get(((all.len() as f64 - 1.0) * p) as usize)
+            .copied()
+            .unwrap_or(f64::NAN)
+    };
+    println!(
+        "all levels' rms residual: min {:.3}, quartiles {:.3} / {:.3} / {:.3}, max {:.3}",
+        q(0.0),
+        q(0.25),
+        q(0.5),
+        q(0.75),
+        q(1.0)
+    );
+    println!("\n| guard (CV {FOLDS} folds, ridge {PCA_RIDGE}, threshold {THRESHOLD}) | 24 | 104 | 456 | share picking PCA | summed log ratio |\n|---|---|---|---|---|---|");
+    let mut rows = Vec::new();
+    for majority in [false, true] {
+        for &max_rms in &MAX_RMS {
+            for &max_relative in &MAX_RELATIVE {
+                if max_rms.is_finite() && max_relative.is_finite() {
+                    continue;
+                }
+                let g = Guard {
+                    max_rms,
+                    max_relative,
+                    majority,
+                };
+                let share = cases.iter().filter(|c| pick(g)(c).is_some()).count() as f64 / cases.len().max(1) as f64;
+                let rs = ratios(cases, pick(g));
+                let sum = rs.iter().map(|v| v[0].ln() + v[1].ln()).sum::<f64>();
+                println!(
+                    "| rms <= {max_rms}, relative <= {max_relative}, majority {majority} |{} {share:.2} | {sum:.4} |",
+                    rs.iter()
+                        .map(|v| format!(" {:.3} / {:.3} |", v[0], v[1]))
+                        .collect::<String>()
+                );
+                rows.push((g, share, sum));
+            }
+        }
+    }
+    let unguarded = rows.iter().find(|(g, _, _)| *g == open).map_or(f64::NAN, |row| row.2);
+    let chosen = rows
+        .iter()
+        .filter(|(_, _, sum)| *sum <= unguarded + GUARD_TOLERANCE)
+        .min_by(|a, b| a.1.total_cmp(&b.1).then(a.2.total_cmp(&b.2)));
+    match chosen {
+        Some((g, share, sum)) => println!(
+            "\nguard chosen (most cautious within {GUARD_TOLERANCE} of the unguarded {unguarded:.4}): {g:?}, share {share:.2}, summed log ratio {sum:.4}"
+        ),
+        None => println!("\nno guard within tolerance"),
+    }
 }

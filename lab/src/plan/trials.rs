@@ -9,7 +9,7 @@ use gonio::reconstruct::{FittedPrior, LevelSamples, NoPrior, OtherModel, Prior, 
 use std::sync::Arc;
 
 /// The names `--prior` takes: the product's first.
-pub const PRIOR_NAMES: [&str; 8] = [
+pub const PRIOR_NAMES: [&str; 9] = [
     "two-lobes",
     "none",
     "fit",
@@ -18,6 +18,7 @@ pub const PRIOR_NAMES: [&str; 8] = [
     "two-lobes-photo",
     "pca",
     "two-lobes-or-pca",
+    "two-lobes-or-pca-guarded",
 ];
 
 /// The prior called `name`; `photo` supplies the capture photo's pixels, asked for by two-lobes-photo only.
@@ -34,13 +35,14 @@ pub fn prior_by_name(
         "two-lobes-photo" => Box::new(PhotoTwoLobesPrior { photo: photo()? }),
         "pca" => Box::new(selected::pca_prior()?),
         "two-lobes-or-pca" => Box::new(selected::selected_prior()?),
+        "two-lobes-or-pca-guarded" => Box::new(selected::guarded_prior()?),
         other => return Err(format!("unknown prior {other:?} (one of {})", PRIOR_NAMES.join(", "))),
     })
 }
 
 /// Whether the prior called `name` reads the nielsen2015 training basis (built or read from the cache).
 pub fn needs_basis(name: &str) -> bool {
-    name == "pca" || name == "two-lobes-or-pca"
+    matches!(name, "pca" | "two-lobes-or-pca" | "two-lobes-or-pca-guarded")
 }
 
 /// Whether the prior called `name` reads the capture photo.

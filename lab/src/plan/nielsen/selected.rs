@@ -7,7 +7,9 @@
 //! in measurement order), each prior fitted on K - 1 folds and scored on the left-out one by the
 //! two-lobe fit's own error (|log(1 + f cos_o) - log(1 + f_rec cos_o)|, weighted by the equal-angle
 //! measure each sample stands for); the prior with the lower total is fitted to all measurements.
-//! No ground truth is read.
+//! An optional `Guard` (the "guarded" trial) also refuses the basis when the scan looks outside its
+//! span: the basis fit's in-sample residual in the basis' own (log-mapped) space above a bound, or
+//! the basis winning the cross-validation on too few folds. No ground truth is read.
 
 use super::basis::Basis;
 use super::bins::{coords, cos_weight, index, map, unmap, N_PHI_D, N_THETA_D, N_THETA_H};
@@ -24,6 +26,14 @@ pub const PCA_RIDGE: f64 = 0.1;
 /// basis' cross-validated error may be and still be picked (both chosen by the same check).
 pub const FOLDS: usize = 5;
 pub const THRESHOLD: f64 = 1.0;
+/// `guarded_prior`'s guard, chosen by the same check on the training materials only (the most
+/// cautious guard within 0.005 summed log ratio of the unguarded trial): the basis fit may leave at
+/// most 20 % of the scan's centred log-mapped values unexplained (relative in-sample residual).
+pub const GUARD: Guard = Guard {
+    max_rms: f64::INFINITY,
+    max_relative: 0.2,
+    majority: false,
+};
 
 /// The training basis' model, loaded once per process.
 pub fn training_model() -> Result<Arc<PcaModel>, String> {
@@ -47,6 +57,15 @@ pub fn selected_prior() -> Result<SelectedPrior, String> {
         pca: pca_prior()?,
         folds: FOLDS,
         threshold: THRESHOLD,
+        guard: None,
+    })
+}
+
+/// `selected_prior` with `GUARD`.
+pub fn guarded_prior() -> Result<SelectedPrior, String> {
+    Ok(SelectedPrior {
+        guard: Some(GUARD),
+        ..selected_prior()?
     })
 }
 
@@ -74,6 +93,16 @@ impl PcaModel {
     /// Ridge-fitted coefficients (per component, RGB) of `values` at `pairs`; None when no pair
     /// lands in a valid bin or the system is singular.
     pub fn coefficients(&self, pairs: &[(DVec3, DVec3)], values: &[DVec3], ridge: f64) -> Option<Vec<[f32; 3]>> {
+        self.fit(pairs, values, ridge).map(|(c, _)| c)
+    }
+
+    /// The basis fit's in-sample residual on `values` at `pairs` (see `SpanResidual`).
+    pub fn span_residual(&self, pairs: &[(DVec3, DVec3)], values: &[DVec3], ridge: f64) -> Option<SpanResidual> {
+        self.fit(pairs, values, ridge).map(|(_, r)| r)
+    }
+
+    /// `coefficients` with the fit's in-sample residual.
+    fn fit(&self, pairs: &[(DVec3, DVec3)], values: &[DVec3], ridge: f64) -> Option<(Vec<[f32; 3]>, SpanResidual)> {
         let basis = &self.basis;
         let k = basis.k();
         let rows: Vec<(usize, DVec3, f64)> = pairs
@@ -89,17 +118,25 @@ impl PcaModel {
         let normal = a.transpose() * &a + DMatrix::identity(k, k) * ridge;
         let chol = Cholesky::new(normal)?;
         let mut coeffs = vec![[0.0f32; 3]; k];
+        let (mut res2, mut obs2) = (0.0, 0.0);
         for c in 0..3 {
             let r = DVector::from_fn(rows.len(), |i, _| {
                 let (b, v, w) = rows[i];
                 map(v[c] * w, basis.median[b]) - basis.mean[b]
             });
-            let x = chol.solve(&(a.transpose() * r));
+            let x = chol.solve(&(a.transpose() * &r));
+            res2 += (&r - &a * &x).norm_squared();
+            obs2 += r.norm_squared();
             for (j, co) in coeffs.iter_mut().enumerate() {
                 co[c] = (x[j] * basis.sigma[j]) as f32;
             }
         }
-        coeffs.iter().all(|c| c.iter().all(|x| x.is_finite())).then_some(coeffs)
+        let residual = SpanResidual {
+            rms: (res2 / (3 * rows.len()) as f64).sqrt(),
+            relative: if obs2 > 0.0 { (res2 / obs2).sqrt() } else { 0.0 },
+        };
+        let finite = coeffs.iter().all(|c| c.iter().all(|x| x.is_finite())) && residual.rms.is_finite();
+        finite.then_some((coeffs, residual))
     }
 
     /// The fit's value at a pair (its bin's), without building the table: for cross-validation.
@@ -140,12 +177,46 @@ impl Prior for PcaPrior {
     }
 }
 
-/// Which prior the cross-validation picked, with both totals.
+/// How far a scan's measurements are from the basis' span, in the basis' own space: the ridge
+/// fit's residual over the measured pairs' bins and the three channels, each value log-mapped and
+/// centred as the basis' observations are (so 0.1 is about 10 % in f cos), as an RMS and relative
+/// to the RMS of the centred values themselves (the share of the scan the basis leaves unexplained).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SpanResidual {
+    pub rms: f64,
+    pub relative: f64,
+}
+
+/// When the basis may be picked besides winning the cross-validation on the total: its
+/// `SpanResidual` at most `max_rms` and `max_relative`, and (with `majority`) lower error than the
+/// two lobes on more than half of the folds. All measured on the level's own measurements.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Guard {
+    pub max_rms: f64,
+    pub max_relative: f64,
+    pub majority: bool,
+}
+
+impl Guard {
+    /// Whether the guard lets the basis be picked, given its residual and per-fold errors
+    /// ((two lobes, basis) per fold).
+    pub fn allows(&self, residual: Option<SpanResidual>, folds: &[(f64, f64)]) -> bool {
+        let wins = folds.iter().filter(|(lobes, pca)| pca < lobes).count();
+        residual.is_some_and(|r| r.rms <= self.max_rms && r.relative <= self.max_relative)
+            && (!self.majority || 2 * wins > folds.len())
+    }
+}
+
+/// Which prior the cross-validation picked, with both totals, and what the guard saw.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Choice {
     pub pca: bool,
     pub two_lobes_err: f64,
     pub pca_err: f64,
+    /// The basis fit's in-sample residual on all the level's measurements (None: no fit).
+    pub residual: Option<SpanResidual>,
+    /// Folds on which the basis had the lower error.
+    pub pca_fold_wins: usize,
 }
 
 /// The per-scan choice between `TwoLobesPrior` and `PcaPrior` (see the module doc).
@@ -154,17 +225,30 @@ pub struct SelectedPrior {
     pub folds: usize,
     /// The basis is picked when its CV error is below `threshold` x the two lobes'.
     pub threshold: f64,
+    /// None: today's trial (`two-lobes-or-pca`); Some: `two-lobes-or-pca-guarded`.
+    pub guard: Option<Guard>,
 }
 
 impl SelectedPrior {
     /// The cross-validated errors of both priors on `s`, and the choice (two lobes when neither
-    /// has an error: too few samples).
+    /// has an error: too few samples, or when the guard refuses the basis).
     pub fn choose(&self, s: &LevelSamples<'_>) -> Choice {
-        let (two_lobes_err, pca) = cross_validate(&self.pca.model, s, self.folds, &[self.pca.ridge]);
+        let per_fold: Vec<(f64, f64)> = cross_validate_folds(&self.pca.model, s, self.folds, &[self.pca.ridge])
+            .into_iter()
+            .map(|(lobes, pca)| (lobes, pca[0]))
+            .collect();
+        let (two_lobes_err, pca_err) = per_fold.iter().fold((0.0, 0.0), |(a, b), (l, p)| (a + l, b + p));
+        let residual = match self.guard {
+            Some(_) => self.pca.model.span_residual(&s.pairs, s.values, self.pca.ridge),
+            None => None,
+        };
+        let guard_allows = self.guard.is_none_or(|g| g.allows(residual, &per_fold));
         Choice {
-            pca: pca[0] < self.threshold * two_lobes_err,
+            pca: pca_err < self.threshold * two_lobes_err && guard_allows,
             two_lobes_err,
-            pca_err: pca[0],
+            pca_err,
+            residual,
+            pca_fold_wins: per_fold.iter().filter(|(l, p)| p < l).count(),
         }
     }
 }
@@ -173,15 +257,32 @@ impl SelectedPrior {
 /// `ridges` on `s` (see the module doc); zeros (two lobes are kept) with fewer usable samples than
 /// two per fold.
 pub fn cross_validate(model: &PcaModel, s: &LevelSamples<'_>, folds: usize, ridges: &[f64]) -> (f64, Vec<f64>) {
+    let mut total = (0.0, vec![0.0; ridges.len()]);
+    for (lobes, pca) in cross_validate_folds(model, s, folds, ridges) {
+        total.0 += lobes;
+        total.1.iter_mut().zip(pca).for_each(|(t, e)| *t += e);
+    }
+    total
+}
+
+/// `cross_validate` per fold: (two lobes, per ridge) on each left-out fold; empty with fewer
+/// usable samples than two per fold.
+pub fn cross_validate_folds(
+    model: &PcaModel,
+    s: &LevelSamples<'_>,
+    folds: usize,
+    ridges: &[f64],
+) -> Vec<(f64, Vec<f64>)> {
     let usable: Vec<usize> = (0..s.pairs.len())
         .filter(|&i| s.weights[i] > 0.0 && s.values[i].is_finite() && s.pairs[i].1.z > 0.0)
         .collect();
     let k = folds.max(2);
-    let (mut lobes_err, mut pca_err) = (0.0, vec![0.0; ridges.len()]);
     if usable.len() < 2 * k {
-        return (lobes_err, pca_err);
+        return Vec::new();
     }
+    let mut out = Vec::with_capacity(k);
     for fold in 0..k {
+        let (mut lobes_err, mut pca_err) = (0.0, vec![0.0; ridges.len()]);
         let (test, train): (Vec<_>, Vec<_>) = usable.iter().enumerate().partition(|(n, _)| n % k == fold);
         let train: Vec<usize> = train.into_iter().map(|(_, &i)| i).collect();
         let values: Vec<DVec3> = train.iter().map(|&i| s.values[i]).collect();
@@ -204,8 +305,9 @@ pub fn cross_validate(model: &PcaModel, s: &LevelSamples<'_>, folds: usize, ridg
                 *e += c.as_ref().map_or(f64::INFINITY, |c| err(model.value_at(c, wi, wo)));
             }
         }
+        out.push((lobes_err, pca_err));
     }
-    (lobes_err, pca_err)
+    out
 }
 
 /// The two-lobe fit's error of `got` against `want` at cos_o, times the sample's weight (RGB mean).
@@ -217,12 +319,24 @@ fn weighted_log_err(want: DVec3, got: DVec3, cos_o: f64, weight: f64) -> f64 {
 
 impl Prior for SelectedPrior {
     fn name(&self) -> &'static str {
-        "two-lobes-or-pca"
+        match self.guard {
+            None => "two-lobes-or-pca",
+            Some(_) => "two-lobes-or-pca-guarded",
+        }
     }
     fn about(&self) -> &'static str {
-        " (per level, two-lobes or pca, whichever has the lower K-fold cross-validated log error over \
-         the level's own measurements, weighted as the two-lobe fit weighs them; then the grid \
-         interpolates the residuals of the chosen one)"
+        match self.guard {
+            None => {
+                " (per level, two-lobes or pca, whichever has the lower K-fold cross-validated log error \
+                 over the level's own measurements, weighted as the two-lobe fit weighs them; then the \
+                 grid interpolates the residuals of the chosen one)"
+            }
+            Some(_) => {
+                " (as two-lobes-or-pca, but pca only where the level's measurements look inside the \
+                 basis' span: the basis fit's in-sample log-mapped residual within the guard's bounds, \
+                 and the cross-validation won on the guard's share of folds)"
+            }
+        }
     }
     fn fit(&self, s: &LevelSamples<'_>) -> Option<FittedPrior> {
         match self.choose(s).pca {
@@ -286,6 +400,7 @@ mod tests {
             },
             folds: 5,
             threshold: 1.0,
+            guard: None,
         };
         let run = |m: &dyn Material| {
             let pairs = pairs();
@@ -315,5 +430,96 @@ mod tests {
         let fitted = prior.fit(&s).expect("two lobes");
         assert!(fitted.eval(DVec3::Z, DVec3::Z).is_finite());
         assert!(prior.pca.fit(&s).is_none_or(|p| p.eval(DVec3::Z, DVec3::Z).is_finite()));
+    }
+
+    /// A retro lobe of width `w` over a sharp GGX-like highlight (exp of the half vector's tilt):
+    /// neither the retro basis nor two lobes span it exactly.
+    struct Outside {
+        w: f64,
+        spec: f64,
+    }
+
+    impl Material for Outside {
+        fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
+            if wi.z <= 0.0 || wo.z <= 0.0 {
+                return DVec3::ZERO;
+            }
+            let h = (wi + wo).normalize();
+            let retro = (-(wi - wo).length_squared() / self.w).exp();
+            let spec = self.spec * (-(1.0 - h.z * h.z) / 0.002).exp();
+            DVec3::new(0.9, 0.3, 0.05) * (0.3 + retro) + DVec3::splat(spec)
+        }
+    }
+
+    fn choose_on(prior: &SelectedPrior, m: &dyn Material) -> Choice {
+        let pairs = pairs();
+        let values: Vec<DVec3> = pairs.iter().map(|&(wi, wo)| m.eval(wi, wo)).collect();
+        let s = LevelSamples {
+            pairs,
+            values: &values,
+            weights: vec![1.0; values.len()],
+            estimate_alpha: 0.1,
+        };
+        prior.choose(&s)
+    }
+
+    /// A material outside the basis' span that still wins the cross-validation against two lobes
+    /// (neither prior fits it: a wide tinted retro lobe under a sharp highlight) is refused the
+    /// basis by the residual bound; one inside it keeps the basis under the same guard.
+    #[test]
+    fn the_guard_keeps_two_lobes_outside_the_span() {
+        let guard = Guard {
+            max_rms: 0.3,
+            max_relative: f64::INFINITY,
+            majority: false,
+        };
+        let mut prior = SelectedPrior {
+            pca: PcaPrior {
+                model: Arc::new(PcaModel::new(retro_basis())),
+                ridge: 1e-3,
+            },
+            folds: 5,
+            threshold: 1.0,
+            guard: None,
+        };
+        let outside = Outside { w: 0.2, spec: 10.0 };
+        let inside = Retro { k: 0.8, kd: 0.2 };
+        let unguarded = choose_on(&prior, &outside);
+        assert!(unguarded.pca && unguarded.residual.is_none(), "{unguarded:?}");
+        prior.guard = Some(guard);
+        assert_eq!(prior.name(), "two-lobes-or-pca-guarded");
+        let refused = choose_on(&prior, &outside);
+        assert!(!refused.pca, "{refused:?}");
+        assert!(refused.residual.is_some_and(|r| r.rms > 0.3), "{refused:?}");
+        assert_eq!(refused.pca_err, unguarded.pca_err);
+        let kept = choose_on(&prior, &inside);
+        assert!(kept.pca, "{kept:?}");
+        assert!(kept.residual.is_some_and(|r| r.rms < 0.15), "{kept:?}");
+        assert_eq!(kept.pca_fold_wins, 5);
+    }
+
+    /// Each part of the guard: the residual bounds, no fit at all, and the majority of folds.
+    #[test]
+    fn the_guard_needs_every_condition() {
+        let guard = Guard {
+            max_rms: 0.3,
+            max_relative: 0.5,
+            majority: true,
+        };
+        let r = |rms, relative| Some(SpanResidual { rms, relative });
+        let wins3 = [(1.0, 0.5), (1.0, 0.5), (1.0, 0.5), (1.0, 2.0), (1.0, 2.0)];
+        let wins2 = [(1.0, 0.5), (1.0, 0.5), (1.0, 2.0), (1.0, 2.0), (1.0, 2.0)];
+        assert!(guard.allows(r(0.2, 0.4), &wins3));
+        assert!(!guard.allows(r(0.2, 0.4), &wins2));
+        assert!(!guard.allows(r(0.4, 0.4), &wins3));
+        assert!(!guard.allows(r(0.2, 0.6), &wins3));
+        assert!(!guard.allows(None, &wins3));
+        assert!(!guard.allows(r(0.2, 0.4), &[]));
+        let no_majority = Guard {
+            majority: false,
+            ..guard
+        };
+        assert!(no_majority.allows(r(0.2, 0.4), &wins2));
+        assert!(!no_majority.allows(r(f64::NAN, 0.4), &wins2));
     }
 }
