@@ -278,24 +278,9 @@ pub fn run_rows(
                     out
                 }
                 Trial::Choose(cs) => {
-                    let mut out = Vec::new();
-                    for strategy in [Strategy::Auto, Strategy::Uniform] {
-                        let planner = Planner::new(*instrument, estimate.clone())?;
-                        let mut explorer = choose::Explorer::new(&planner, truth.as_ref(), strategy, 1 << max_level)?;
-                        let mut done: Vec<(Vec<(usize, usize)>, Vec<Scored>)> = Vec::new();
-                        for &c in cs {
-                            let choice = explorer.choose(c, max_level, &uniform)?;
-                            if !done.iter().any(|d| d.0 == choice.schedule) {
-                                let (plan, values) = explorer.plan(&choice.schedule)?;
-                                let summaries = &plan.levels[..choice.schedule.len()];
-                                let levels = assess_levels(plan, summaries, values, spec, &mut scorer, &truth_env)?;
-                                done.push((choice.schedule.clone(), levels));
-                            }
-                            let levels = done.iter().find(|d| d.0 == choice.schedule).map(|d| d.1.clone());
-                            out.push((choose_label(strategy, c), levels.unwrap_or_default(), Some(choice)));
-                        }
-                    }
-                    out
+                    let planner = Planner::new(*instrument, estimate.clone())?;
+                    let truth = (truth.as_ref(), spec.as_str(), &truth_env);
+                    choose_runs(&planner, truth, cs, max_level, &uniform, &mut scorer)?
                 }
             };
             for (label, levels, choice) in runs {
@@ -315,6 +300,36 @@ pub fn run_rows(
         progress(&format!("{spec}: point/env FLIP {}", lines.join("; ")));
     }
     Ok(rows)
+}
+
+/// Trial `choose`: per strategy and constant c, the chosen schedule's levels assessed (a schedule
+/// chosen by several c is assessed once). `truth`: material, spec, environment render.
+fn choose_runs(
+    planner: &Planner,
+    truth: (&dyn gonio::brdf::Material, &str, &gonio::render::Image),
+    cs: &[f64],
+    max_level: usize,
+    uniform: &[usize],
+    scorer: &mut Scorer,
+) -> Result<Vec<(String, Vec<Scored>, Option<choose::Choice>)>, PlanError> {
+    let (material, spec, truth_env) = truth;
+    let mut out = Vec::new();
+    for strategy in [Strategy::Auto, Strategy::Uniform] {
+        let mut explorer = choose::Explorer::new(planner, material, strategy, 1 << max_level)?;
+        let mut done: Vec<(Vec<(usize, usize)>, Vec<Scored>)> = Vec::new();
+        for &c in cs {
+            let choice = explorer.choose(c, max_level, uniform)?;
+            if !done.iter().any(|d| d.0 == choice.schedule) {
+                let (plan, values) = explorer.plan(&choice.schedule)?;
+                let summaries = &plan.levels[..choice.schedule.len()];
+                let levels = assess_levels(plan, summaries, values, spec, scorer, truth_env)?;
+                done.push((choice.schedule.clone(), levels));
+            }
+            let levels = done.iter().find(|d| d.0 == choice.schedule).map(|d| d.1.clone());
+            out.push((choose_label(strategy, c), levels.unwrap_or_default(), Some(choice)));
+        }
+    }
+    Ok(out)
 }
 
 /// Levels 2.. planned from level 1's fit (`reseed`): None (the photo's plan goes on) unless every
