@@ -213,14 +213,17 @@ pub struct Choice {
     pub sensitivities: Vec<Option<Sensitivity>>,
 }
 
+/// A schedule, (K, N) per level.
+pub type Schedule = Vec<(usize, usize)>;
+
 /// Plans of schedules measured on one material, by schedule.
 pub struct Explorer<'a> {
     planner: &'a Planner,
     truth: &'a dyn Material,
     strategy: Strategy,
     fine_n: usize,
-    plans: HashMap<Vec<(usize, usize)>, (Plan, Vec<DVec3>)>,
-    sens: HashMap<Vec<(usize, usize)>, Option<Sensitivity>>,
+    plans: HashMap<Schedule, (Plan, Vec<DVec3>)>,
+    sens: HashMap<Schedule, Option<Sensitivity>>,
     scorer: Scorer,
 }
 

@@ -171,6 +171,9 @@ fn schedule_config(strategy: Strategy, levels: &[(usize, usize)]) -> PlanConfig 
 /// A level's assessment with the report's own scores of its reconstruction (log_err, env FLIP).
 type Scored = (LevelAssessment, f64, f64);
 
+/// A trial's rows of one material: label, levels, and the choice that made them (`choose`).
+type Run = (String, Vec<Scored>, Option<choose::Choice>);
+
 fn rows_of(material: &str, strategy: &str, levels: &[Scored], uniform: &[usize]) -> Vec<LoopRow> {
     levels
         .iter()
@@ -254,7 +257,7 @@ pub fn run_rows(
         };
         let mut lines = vec![format!("adaptive {}, uniform {}", line(&per[0]), line(&per[1]))];
         for trial in trials {
-            let runs: Vec<(String, Vec<Scored>, Option<choose::Choice>)> = match trial {
+            let runs: Vec<Run> = match trial {
                 Trial::Reseed => {
                     let (first, config) = photo_plan
                         .as_ref()
@@ -311,12 +314,12 @@ fn choose_runs(
     max_level: usize,
     uniform: &[usize],
     scorer: &mut Scorer,
-) -> Result<Vec<(String, Vec<Scored>, Option<choose::Choice>)>, PlanError> {
+) -> Result<Vec<Run>, PlanError> {
     let (material, spec, truth_env) = truth;
     let mut out = Vec::new();
     for strategy in [Strategy::Auto, Strategy::Uniform] {
         let mut explorer = choose::Explorer::new(planner, material, strategy, 1 << max_level)?;
-        let mut done: Vec<(Vec<(usize, usize)>, Vec<Scored>)> = Vec::new();
+        let mut done: Vec<(choose::Schedule, Vec<Scored>)> = Vec::new();
         for &c in cs {
             let choice = explorer.choose(c, max_level, uniform)?;
             if !done.iter().any(|d| d.0 == choice.schedule) {
