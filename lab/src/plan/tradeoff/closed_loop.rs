@@ -8,7 +8,7 @@
 //! the equal-directions ratios closed loop / uniform per level on point FLIP, environment FLIP
 //! (the noise-free quadrature render, `render::quadrature`) and `brdf_log_err`, and monotonicity.
 
-use super::{capture_photo, photo_estimate, reseed, HELDOUT_MATERIALS, REAL_MATERIALS, TRAINING_MATERIALS};
+use super::{capture_photo, choose, photo_estimate, reseed, HELDOUT_MATERIALS, REAL_MATERIALS, TRAINING_MATERIALS};
 use crate::plan::report::{csv, write};
 use gonio::brdf::parse_material;
 use gonio::encoder::infer::Encoder;
@@ -69,6 +69,14 @@ pub struct LoopRow {
     /// Environment-light FLIP, noise-free quadrature render (`ENV_SIZE` px, `examples/sphere-sky.toml`).
     #[serde(default)]
     pub env_flip: Option<f64>,
+    /// Trial `choose`: the schedule up to this level (K x N per level) and the sensitivities the
+    /// choice after this level read (`choose::Sensitivity`).
+    #[serde(default)]
+    pub schedule: Option<String>,
+    #[serde(default)]
+    pub e_in: Option<f64>,
+    #[serde(default)]
+    pub e_out: Option<f64>,
 }
 
 /// Side (px) of the environment render the report scores (the point render's `ESTIMATE_SIZE`).
@@ -85,6 +93,9 @@ pub enum Trial {
     /// Per-level incoming elevations and outgoing N x N, [(K, N)] (`PlanConfig::incoming`), for
     /// the product's plan and the uniform grid: rows `adaptive K1xN1,...` and `uniform K1xN1,...`.
     Schedule(Vec<(usize, usize)>),
+    /// Each level's elevations or outgoing grid chosen by the measurements (`choose`), one row
+    /// set per constant c for the product's plan and the uniform grid: rows `adaptive choose c=C`.
+    Choose(Vec<f64>),
 }
 
 impl Trial {
@@ -92,6 +103,15 @@ impl Trial {
     pub fn parse(s: &str) -> Result<Trial, String> {
         if s == "reseed" {
             return Ok(Trial::Reseed);
+        }
+        if let Some(list) = s.strip_prefix("choose:") {
+            let cs: Option<Vec<f64>> = list
+                .split(',')
+                .map(|c| c.trim().parse().ok().filter(|c: &f64| *c >= 0.0))
+                .collect();
+            return cs
+                .map(Trial::Choose)
+                .ok_or_else(|| format!("trial {s:?}: expected choose:C,C,... (C >= 0 or inf)"));
         }
         let list = s
             .strip_prefix("schedule:")
@@ -113,6 +133,7 @@ impl Trial {
     fn label(&self, strategy: Strategy) -> String {
         match self {
             Trial::Reseed => "reseed".into(),
+            Trial::Choose(_) => choose_label(strategy, f64::INFINITY),
             Trial::Schedule(levels) => {
                 let name = if strategy == Strategy::Uniform {
                     "uniform"
@@ -124,6 +145,16 @@ impl Trial {
             }
         }
     }
+}
+
+/// The rows' strategy name of trial `choose` with constant `c`.
+fn choose_label(strategy: Strategy, c: f64) -> String {
+    let name = if strategy == Strategy::Uniform {
+        "uniform"
+    } else {
+        "adaptive"
+    };
+    format!("{name} choose c={c}")
 }
 
 /// The plan config of a (K, N) per level schedule.
@@ -139,6 +170,9 @@ fn schedule_config(strategy: Strategy, levels: &[(usize, usize)]) -> PlanConfig 
 
 /// A level's assessment with the report's own scores of its reconstruction (log_err, env FLIP).
 type Scored = (LevelAssessment, f64, f64);
+
+/// A trial's rows of one material: label, levels, and the choice that made them (`choose`).
+type Run = (String, Vec<Scored>, Option<choose::Choice>);
 
 fn rows_of(material: &str, strategy: &str, levels: &[Scored], uniform: &[usize]) -> Vec<LoopRow> {
     levels
@@ -160,6 +194,9 @@ fn rows_of(material: &str, strategy: &str, levels: &[Scored], uniform: &[usize])
             coverage: a.coverage,
             brdf_log_err: Some(*log_err),
             env_flip: Some(*env_flip),
+            schedule: None,
+            e_in: None,
+            e_out: None,
         })
         .collect()
 }
@@ -220,13 +257,17 @@ pub fn run_rows(
         };
         let mut lines = vec![format!("adaptive {}, uniform {}", line(&per[0]), line(&per[1]))];
         for trial in trials {
-            let runs: Vec<(String, Vec<Scored>)> = match trial {
+            let runs: Vec<Run> = match trial {
                 Trial::Reseed => {
                     let (first, config) = photo_plan
                         .as_ref()
                         .ok_or_else(|| PlanError::Invalid("no photo plan".into()))?;
                     let levels = reseeded_levels(first, config, instrument, &uniform, spec, &mut scorer, &truth_env)?;
-                    vec![(trial.label(Strategy::Auto), levels.unwrap_or_else(|| per[0].clone()))]
+                    vec![(
+                        trial.label(Strategy::Auto),
+                        levels.unwrap_or_else(|| per[0].clone()),
+                        None,
+                    )]
                 }
                 Trial::Schedule(schedule) => {
                     let mut out = Vec::new();
@@ -235,19 +276,63 @@ pub fn run_rows(
                             Planner::new(*instrument, estimate.clone())?.plan(&schedule_config(strategy, schedule))?;
                         let values = plan.measure(truth.as_ref());
                         let levels = assess_levels(&plan, &plan.levels, &values, spec, &mut scorer, &truth_env)?;
-                        out.push((trial.label(strategy), levels));
+                        out.push((trial.label(strategy), levels, None));
                     }
                     out
                 }
+                Trial::Choose(cs) => {
+                    let planner = Planner::new(*instrument, estimate.clone())?;
+                    let truth = (truth.as_ref(), spec.as_str(), &truth_env);
+                    choose_runs(&planner, truth, cs, max_level, &uniform, &mut scorer)?
+                }
             };
-            for (label, levels) in runs {
+            for (label, levels, choice) in runs {
                 lines.push(format!("{label} {}", line(&levels)));
-                rows.extend(rows_of(spec, &label, &levels, &uniform));
+                let mut new = rows_of(spec, &label, &levels, &uniform);
+                if let Some(choice) = choice {
+                    lines.push(format!("({})", choose::label(&choice.schedule)));
+                    for (l, r) in new.iter_mut().enumerate() {
+                        r.schedule = Some(choose::label(&choice.schedule[..=l]));
+                        let s = choice.sensitivities.get(l).copied().flatten();
+                        (r.e_in, r.e_out) = (s.map(|s| s.e_in), s.map(|s| s.e_out));
+                    }
+                }
+                rows.extend(new);
             }
         }
         progress(&format!("{spec}: point/env FLIP {}", lines.join("; ")));
     }
     Ok(rows)
+}
+
+/// Trial `choose`: per strategy and constant c, the chosen schedule's levels assessed (a schedule
+/// chosen by several c is assessed once). `truth`: material, spec, environment render.
+fn choose_runs(
+    planner: &Planner,
+    truth: (&dyn gonio::brdf::Material, &str, &gonio::render::Image),
+    cs: &[f64],
+    max_level: usize,
+    uniform: &[usize],
+    scorer: &mut Scorer,
+) -> Result<Vec<Run>, PlanError> {
+    let (material, spec, truth_env) = truth;
+    let mut out = Vec::new();
+    for strategy in [Strategy::Auto, Strategy::Uniform] {
+        let mut explorer = choose::Explorer::new(planner, material, strategy, 1 << max_level)?;
+        let mut done: Vec<(choose::Schedule, Vec<Scored>)> = Vec::new();
+        for &c in cs {
+            let choice = explorer.choose(c, max_level, uniform)?;
+            if !done.iter().any(|d| d.0 == choice.schedule) {
+                let (plan, values) = explorer.plan(&choice.schedule)?;
+                let summaries = &plan.levels[..choice.schedule.len()];
+                let levels = assess_levels(plan, summaries, values, spec, scorer, truth_env)?;
+                done.push((choice.schedule.clone(), levels));
+            }
+            let levels = done.iter().find(|d| d.0 == choice.schedule).map(|d| d.1.clone());
+            out.push((choose_label(strategy, c), levels.unwrap_or_default(), Some(choice)));
+        }
+    }
+    Ok(out)
 }
 
 /// Levels 2.. planned from level 1's fit (`reseed`): None (the photo's plan goes on) unless every
@@ -421,6 +506,8 @@ pub fn summary(rows: &[LoopRow], title: &str, regenerate: &str) -> String {
     {
         let title = if strategy == "reseed" {
             "re-seeded from level 1's fit (lab trial)".to_string()
+        } else if strategy.contains("choose") {
+            format!("{strategy} (lab trial: the measurements choose elevations or outgoing grid per level)")
         } else {
             format!("{strategy} (lab trial, incoming K x outgoing N per level)")
         };
@@ -574,11 +661,15 @@ fn per_level_table(md: &mut String, rows: &[LoopRow]) {
             (Some(e), Some(lo), Some(hi)) => format!("{e:.4} [{lo:.4}, {hi:.4}]"),
             _ => "-".into(),
         };
+        let strategy = match (&r.schedule, r.e_in, r.e_out) {
+            (Some(s), Some(i), Some(o)) => format!("{} ({s}; e_in {i:.4}, e_out {o:.4})", r.strategy),
+            (Some(s), _, _) => format!("{} ({s})", r.strategy),
+            _ => r.strategy.clone(),
+        };
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {:.1} | {} | {} | {} | {est} |",
+            "| {} | {strategy} | {} | {} | {:.1} | {} | {} | {} | {est} |",
             short_name(&r.material),
-            r.strategy,
             r.level,
             r.directions,
             r.minutes,
@@ -656,6 +747,9 @@ mod tests {
             coverage: None,
             brdf_log_err: Some(2.0 * error),
             env_flip: Some(4.0 * error),
+            schedule: None,
+            e_in: None,
+            e_out: None,
         }
     }
 
@@ -671,7 +765,14 @@ mod tests {
             Trial::Schedule(vec![(8, 2), (15, 2)]).label(Strategy::Uniform),
             "uniform 8x2,15x2"
         );
+        assert_eq!(
+            Trial::parse("choose:0.5,1,inf"),
+            Ok(Trial::Choose(vec![0.5, 1.0, f64::INFINITY]))
+        );
+        assert_eq!(choose_label(Strategy::Auto, 2.0), "adaptive choose c=2");
         for bad in [
+            "choose:",
+            "choose:-1",
             "schedule:8x2,16x4",
             "schedule:8x2,8x2",
             "schedule:8x",

@@ -31,6 +31,7 @@ use std::fmt;
 use std::path::Path;
 use std::time::Instant;
 
+pub mod choose;
 pub mod closed_loop;
 pub mod liu;
 mod markdown;
