@@ -3,7 +3,7 @@
 //! goal wherever level 1 already meets the target. This measures measurement-only candidates on a preset's materials, planned as
 //! `gonio-lab closed-loop` plans them (the shipped encoder on a capture photo, the product's plan):
 //! - `change`: point FLIP between level 1's reconstruction and level 1 without every other incoming
-//!   elevation (`SliceSubset`), the analogue of the loop's change between levels;
+//!   elevation (`choose::LeaveOut`), the analogue of the loop's change between levels;
 //! - `fit_rms` / `fit_q90`: the fitted prior's log residuals at the measurements;
 //! - `cv_rms` / `cv_q90`: the left-out elevations' log residuals against the subset's reconstruction.
 //!
@@ -22,7 +22,7 @@ use gonio::plan::closed_loop::ESTIMATE_SIZE;
 use gonio::plan::predict::{score, Scorer};
 use gonio::plan::{square_grids, PlanConfig, Planner, Strategy};
 use gonio::reconstruct::{reconstruct, Levels, RATIO_FLOOR};
-use gonio_lab::plan::slice_subset::SliceSubset;
+use gonio_lab::plan::tradeoff::choose::{alternate_slices, LeaveOut};
 use gonio_lab::plan::tradeoff::closed_loop::{quantile, read_rows, LoopPreset, LoopRow};
 use gonio_lab::plan::tradeoff::{capture_photo, photo_estimate};
 
@@ -89,9 +89,12 @@ fn main() -> anyhow::Result<()> {
         let nodes = plan.level_nodes(1).ok_or_else(|| anyhow::anyhow!("no level 1"))?;
         let values = &values[..nodes.measured.len()];
         let rec = reconstruct(&plan, 1, values)?;
-        let keep = |k: usize| k % 2 == 0 || k + 1 == nodes.thetas.len();
-        let subset = SliceSubset::new(&plan, 1, values, keep).ok_or_else(|| anyhow::anyhow!("no subset"))?;
-        let coarse = reconstruct(&subset, 1, subset.values())?;
+        let keep = alternate_slices(nodes.thetas.len()).ok_or_else(|| anyhow::anyhow!("too few elevations"))?;
+        let subset = LeaveOut::new(&plan, 1, values, &keep, false).ok_or_else(|| anyhow::anyhow!("no subset"))?;
+        let coarse = reconstruct(&subset, 1, &subset.values)?;
+        let left_out: Vec<usize> = (0..nodes.measured.len())
+            .filter(|&d| !keep.contains(&nodes.measured[d].0))
+            .collect();
         let image = scorer.render(Box::new(rec.clone()));
         let true_flip = score(&scorer.render(gonio::brdf::parse_material(&spec)?), &image)?.flip;
         let change = score(&scorer.render(Box::new(coarse.clone())), &image)?.flip;
@@ -107,7 +110,7 @@ fn main() -> anyhow::Result<()> {
                 .collect(),
             None => Vec::new(),
         };
-        let mut cv = residuals(subset.left_out(), &nodes.measured, values, &coarse);
+        let mut cv = residuals(&left_out, &nodes.measured, values, &coarse);
         fit.sort_by(f64::total_cmp);
         cv.sort_by(f64::total_cmp);
         let row = [change, rms(&fit), quantile(fit, 0.9), rms(&cv), quantile(cv, 0.9)];

@@ -7,6 +7,5 @@ pub use gonio::plan::*;
 pub mod nielsen;
 pub mod photo_samples;
 pub mod report;
-pub mod slice_subset;
 pub mod tradeoff;
 pub mod trials;
