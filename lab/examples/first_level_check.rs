@@ -100,14 +100,7 @@ fn main() -> anyhow::Result<()> {
         let change = score(&scorer.render(Box::new(coarse.clone())), &image)?.flip;
         let all: Vec<usize> = (0..nodes.measured.len()).collect();
         let mut fit = match rec.prior() {
-            Some(p) => all
-                .iter()
-                .flat_map(|&d| {
-                    let (_, wi, wo) = nodes.measured[d];
-                    let r = log_space(values[d]) - log_space(p.eval(wi, wo));
-                    [r.x.abs(), r.y.abs(), r.z.abs()]
-                })
-                .collect(),
+            Some(p) => residuals(&all, &nodes.measured, values, p),
             None => Vec::new(),
         };
         let mut cv = residuals(&left_out, &nodes.measured, values, &coarse);

@@ -20,7 +20,6 @@ use gonio::encoder::infer::Encoder;
 use gonio::encoder::ModelKind;
 use gonio::plan::predict::Scorer;
 use gonio::plan::{PlanConfig, Planner, Strategy};
-use gonio::reconstruct::FittedPrior;
 use gonio::render::scene::{DeltaLight, Scene};
 use gonio_lab::plan::tradeoff::{capture_photo, photo_estimate};
 
@@ -28,14 +27,6 @@ use gonio_lab::plan::tradeoff::{capture_photo, photo_estimate};
 const EDGES: [f64; 11] = [0.0, 2.0, 4.0, 7.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0, 180.0];
 /// Side of the point-light render, as `gonio-lab tradeoff`'s default `--size`.
 const SIZE: usize = 128;
-
-/// The fitted prior alone, as a material.
-struct PriorOnly(FittedPrior);
-impl Material for PriorOnly {
-    fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
-        self.0.eval(wi, wo)
-    }
-}
 
 fn main() -> anyhow::Result<()> {
     let mut args = std::env::args().skip(1);
@@ -162,7 +153,7 @@ fn main() -> anyhow::Result<()> {
             let name = plan.warp.to_string();
             profiles.push((name.clone(), Box::new(rec)));
             if let Some(p) = prior {
-                profiles.push((format!("{name} prior"), Box::new(PriorOnly(p))));
+                profiles.push((format!("{name} prior"), Box::new(p)));
             }
         }
         // In the plane of the light and the camera: the normal at angle a from the view axis toward

@@ -8,24 +8,13 @@
 //! Planned as `gonio-lab closed-loop` plans (the shipped encoder on a capture photo, 4 levels, 8
 //! incoming elevations), measured without noise.
 
-use glam::DVec3;
-use gonio::brdf::Material;
 use gonio::encoder::infer::Encoder;
 use gonio::encoder::ModelKind;
 use gonio::plan::predict::Scorer;
 use gonio::plan::{square_grids, PlanConfig, Planner, Strategy};
-use gonio::reconstruct::{reconstruct, FittedPrior};
+use gonio::reconstruct::reconstruct;
 use gonio_lab::plan::tradeoff::closed_loop::ENV_SIZE;
 use gonio_lab::plan::tradeoff::{capture_photo, photo_estimate};
-
-/// A fitted prior as a material (without the grid's residual).
-struct PriorAlone(FittedPrior);
-
-impl Material for PriorAlone {
-    fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
-        self.0.eval(wi, wo)
-    }
-}
 
 fn main() -> anyhow::Result<()> {
     let specs: Vec<String> = std::env::args().skip(1).collect();
@@ -47,7 +36,7 @@ fn main() -> anyhow::Result<()> {
             for level in 1..=plan.levels.len() {
                 let rec = reconstruct(&plan, level, &values)?;
                 let (alone, fitted) = match rec.prior() {
-                    Some(p) => (scorer.log_err(truth.as_ref(), &PriorAlone(p.clone())), p.describe()),
+                    Some(p) => (scorer.log_err(truth.as_ref(), p), p.describe()),
                     None => (f64::NAN, "none".into()),
                 };
                 println!(

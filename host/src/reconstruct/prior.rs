@@ -104,15 +104,17 @@ impl std::fmt::Debug for OtherModel {
     }
 }
 
-impl FittedPrior {
-    /// The fitted model's value (BRDF, 1/sr), without the grid's residual.
-    pub fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
+/// The fitted model alone, without the grid's residual (BRDF, 1/sr).
+impl Material for FittedPrior {
+    fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
         match self {
             FittedPrior::TwoLobes(m) => m.eval(wi, wo),
             FittedPrior::Other(m) => m.model.eval(wi, wo),
         }
     }
+}
 
+impl FittedPrior {
     /// One line for reports.
     pub fn describe(&self) -> String {
         match self {

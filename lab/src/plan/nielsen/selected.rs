@@ -15,6 +15,7 @@ use super::basis::Basis;
 use super::bins::{coords, cos_weight, index, map, unmap, N_PHI_D, N_THETA_D, N_THETA_H};
 use super::{centre_weights, table};
 use glam::DVec3;
+use gonio::brdf::Material;
 use gonio::reconstruct::{FittedPrior, LevelSamples, OtherModel, Prior, TwoLobesPrior};
 use nalgebra::{Cholesky, DMatrix, DVector};
 use std::sync::Arc;
@@ -389,30 +390,37 @@ mod tests {
             .collect()
     }
 
-    /// A material in the basis' span (retro-reflection) picks the basis; one it cannot span but
-    /// two lobes fit exactly (a sharp GGX lobe) picks the two lobes; degenerate inputs stay finite.
-    #[test]
-    fn the_choice_follows_which_prior_predicts_left_out_samples() {
-        let prior = SelectedPrior {
+    /// The selected prior on `retro_basis`, 5 folds, threshold 1.
+    fn retro_prior(guard: Option<Guard>) -> SelectedPrior {
+        SelectedPrior {
             pca: PcaPrior {
                 model: Arc::new(PcaModel::new(retro_basis())),
                 ridge: 1e-3,
             },
             folds: 5,
             threshold: 1.0,
-            guard: None,
-        };
-        let run = |m: &dyn Material| {
-            let pairs = pairs();
-            let values: Vec<DVec3> = pairs.iter().map(|&(wi, wo)| m.eval(wi, wo)).collect();
-            let s = LevelSamples {
-                pairs,
-                values: &values,
-                weights: vec![1.0; values.len()],
-                estimate_alpha: 0.1,
-            };
-            (prior.choose(&s), prior.fit(&s).map(|p| p.describe()))
-        };
+            guard,
+        }
+    }
+
+    /// `f` on the samples of `m` at `pairs()`, each weighted 1.
+    fn with_samples<R>(m: &dyn Material, f: impl FnOnce(&LevelSamples<'_>) -> R) -> R {
+        let pairs = pairs();
+        let values: Vec<DVec3> = pairs.iter().map(|&(wi, wo)| m.eval(wi, wo)).collect();
+        f(&LevelSamples {
+            pairs,
+            values: &values,
+            weights: vec![1.0; values.len()],
+            estimate_alpha: 0.1,
+        })
+    }
+
+    /// A material in the basis' span (retro-reflection) picks the basis; one it cannot span but
+    /// two lobes fit exactly (a sharp GGX lobe) picks the two lobes; degenerate inputs stay finite.
+    #[test]
+    fn the_choice_follows_which_prior_predicts_left_out_samples() {
+        let prior = retro_prior(None);
+        let run = |m: &dyn Material| with_samples(m, |s| (prior.choose(s), prior.fit(s).map(|p| p.describe())));
         let (inside, described) = run(&Retro { k: 0.8, kd: 0.2 });
         assert!(inside.pca, "{inside:?}");
         assert!(described.is_some_and(|d| d.starts_with("pca")));
@@ -452,15 +460,7 @@ mod tests {
     }
 
     fn choose_on(prior: &SelectedPrior, m: &dyn Material) -> Choice {
-        let pairs = pairs();
-        let values: Vec<DVec3> = pairs.iter().map(|&(wi, wo)| m.eval(wi, wo)).collect();
-        let s = LevelSamples {
-            pairs,
-            values: &values,
-            weights: vec![1.0; values.len()],
-            estimate_alpha: 0.1,
-        };
-        prior.choose(&s)
+        with_samples(m, |s| prior.choose(s))
     }
 
     /// A material outside the basis' span that still wins the cross-validation against two lobes
@@ -473,15 +473,7 @@ mod tests {
             max_relative: f64::INFINITY,
             majority: false,
         };
-        let mut prior = SelectedPrior {
-            pca: PcaPrior {
-                model: Arc::new(PcaModel::new(retro_basis())),
-                ridge: 1e-3,
-            },
-            folds: 5,
-            threshold: 1.0,
-            guard: None,
-        };
+        let mut prior = retro_prior(None);
         let outside = Outside { w: 0.2, spec: 10.0 };
         let inside = Retro { k: 0.8, kd: 0.2 };
         let unguarded = choose_on(&prior, &outside);

@@ -124,7 +124,7 @@ impl Trial {
             })
             .collect::<Option<Vec<(usize, usize)>>>()
             .ok_or_else(|| format!("trial {s:?}: a level is not KxN"))?;
-        let config = schedule_config(Strategy::Auto, &levels);
+        let config = choose::config(Strategy::Auto, &levels, UNPADDED);
         gonio::plan::check_levels(&config.grids, &config.incoming, config.k).map_err(|e| e.to_string())?;
         Ok(Trial::Schedule(levels))
     }
@@ -134,39 +134,28 @@ impl Trial {
         match self {
             Trial::Reseed => "reseed".into(),
             Trial::Choose(_) => choose_label(strategy, f64::INFINITY),
-            Trial::Schedule(levels) => {
-                let name = if strategy == Strategy::Uniform {
-                    "uniform"
-                } else {
-                    "adaptive"
-                };
-                let list: Vec<String> = levels.iter().map(|(k, n)| format!("{k}x{n}")).collect();
-                format!("{name} {}", list.join(","))
-            }
+            Trial::Schedule(levels) => format!("{} {}", row_name(strategy), choose::label(levels)),
         }
+    }
+}
+
+/// The rows' name of the product's plan (`auto`: `adaptive`) or the uniform grid.
+fn row_name(strategy: Strategy) -> &'static str {
+    if strategy == Strategy::Uniform {
+        "uniform"
+    } else {
+        "adaptive"
     }
 }
 
 /// The rows' strategy name of trial `choose` with constant `c`.
 fn choose_label(strategy: Strategy, c: f64) -> String {
-    let name = if strategy == Strategy::Uniform {
-        "uniform"
-    } else {
-        "adaptive"
-    };
-    format!("{name} choose c={c}")
+    format!("{} choose c={c}", row_name(strategy))
 }
 
-/// The plan config of a (K, N) per level schedule.
-fn schedule_config(strategy: Strategy, levels: &[(usize, usize)]) -> PlanConfig {
-    PlanConfig {
-        strategy,
-        grids: levels.iter().map(|&(_, n)| (n, n)).collect(),
-        incoming: levels.iter().map(|&(k, _)| k).collect(),
-        k: levels.last().map_or(1, |l| l.0),
-        ..PlanConfig::default()
-    }
-}
+/// The `schedule:` trial plans its schedule as given, without `choose`'s padding level (its
+/// committed rows were made so; docs/tradeoff/README.md says what that changes).
+const UNPADDED: usize = 0;
 
 /// A level's assessment with the report's own scores of its reconstruction (log_err, env FLIP).
 type Scored = (LevelAssessment, f64, f64);
@@ -272,8 +261,8 @@ pub fn run_rows(
                 Trial::Schedule(schedule) => {
                     let mut out = Vec::new();
                     for strategy in [Strategy::Auto, Strategy::Uniform] {
-                        let plan =
-                            Planner::new(*instrument, estimate.clone())?.plan(&schedule_config(strategy, schedule))?;
+                        let plan = Planner::new(*instrument, estimate.clone())?
+                            .plan(&choose::config(strategy, schedule, UNPADDED))?;
                         let values = plan.measure(truth.as_ref());
                         let levels = assess_levels(&plan, &plan.levels, &values, spec, &mut scorer, &truth_env)?;
                         out.push((trial.label(strategy), levels, None));
