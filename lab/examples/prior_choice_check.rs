@@ -10,7 +10,7 @@
 //! materials of the picked reconstruction's brdf_log_err and liu_log_err against the two lobes',
 //! per level, and the best setting (lowest mean over levels of brdf_log_err and liu_log_err).
 //!
-//! Then the guard of `selected::GUARD` (the `two-lobes-or-pca-guarded` trial) at the shipped
+//! Then the guard (`selected::MAX_UNEXPLAINED`, the product's since issue 28) at the shipped
 //! trial's folds, ridge and threshold: every bound on the basis fit's in-sample residual (RMS and
 //! relative, log-mapped space) with and without the majority-of-folds rule, and the setting the
 //! rule below picks: among the guards whose summed log ratio (both metrics, three counts) is at
@@ -29,9 +29,7 @@ use gonio::plan::predict::{log_err_over, Scorer};
 use gonio::plan::{PlanConfig, Planner};
 use gonio::reconstruct::{reconstruct_with, FittedPrior, LevelSamples, Prior, TwoLobesPrior};
 use gonio_lab::plan::nielsen::basis::{tabulate, Basis};
-use gonio_lab::plan::nielsen::selected::{
-    cross_validate_folds, Guard, PcaModel, PcaPrior, SpanResidual, FOLDS, PCA_RIDGE, THRESHOLD,
-};
+use gonio_lab::plan::nielsen::selected::{cross_validate_folds, PcaModel, PcaPrior, SpanResidual, FOLDS, PCA_RIDGE};
 use gonio_lab::plan::nielsen::training_names;
 use gonio_lab::plan::tradeoff::{capture_photo, liu::liu_pairs, photo_estimate};
 use std::sync::{Arc, Mutex};
@@ -46,6 +44,29 @@ const MAX_RMS: [f64; 11] = [0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0, 
 const MAX_RELATIVE: [f64; 10] = [0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, f64::INFINITY];
 /// Summed log ratio a guard may cost over the unguarded trial (six cells: ~0.1 % per cell).
 const GUARD_TOLERANCE: f64 = 0.005;
+
+/// The shipped threshold: the basis is picked when its CV error is below the two lobes'.
+const THRESHOLD: f64 = 1.0;
+
+/// A guard evaluated here (the product ships `max_relative` alone, as `MAX_UNEXPLAINED`): the basis
+/// fit's `SpanResidual` at most `max_rms` and `max_relative`, and (with `majority`) lower error than
+/// the two lobes on more than half of the folds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Guard {
+    max_rms: f64,
+    max_relative: f64,
+    majority: bool,
+}
+
+impl Guard {
+    /// Whether the guard lets the basis be picked, given its residual and per-fold errors
+    /// ((two lobes, basis) per fold).
+    fn allows(&self, residual: Option<SpanResidual>, folds: &[(f64, f64)]) -> bool {
+        let wins = folds.iter().filter(|(lobes, pca)| pca < lobes).count();
+        residual.is_some_and(|r| r.rms <= self.max_rms && r.relative <= self.max_relative)
+            && (!self.majority || 2 * wins > folds.len())
+    }
+}
 
 /// Per fold count, per fold: (two lobes, per ridge).
 type Folds = Vec<Vec<(f64, Vec<f64>)>>;

@@ -8,6 +8,26 @@ use glam::DVec3;
 use serde::Deserialize;
 use std::path::Path;
 
+/// The encoder's held-out MERL test materials (`host/models/README.md`): no model the product ships
+/// (the encoder, the reconstruction's PCA basis) is trained on them; every claim is tested on them.
+pub const HELDOUT_MATERIALS: [&str; 15] = [
+    "nbrdf:black-oxidized-steel",
+    "nbrdf:blue-metallic-paint2",
+    "nbrdf:color-changing-paint1",
+    "nbrdf:delrin",
+    "nbrdf:gray-plastic",
+    "nbrdf:green-metallic-paint2",
+    "nbrdf:maroon-plastic",
+    "nbrdf:pearl-paint",
+    "nbrdf:polyurethane-foam",
+    "nbrdf:red-metallic-paint",
+    "nbrdf:special-walnut-224",
+    "nbrdf:specular-violet-phenolic",
+    "nbrdf:tungsten-carbide",
+    "nbrdf:white-fabric2",
+    "nbrdf:yellow-plastic",
+];
+
 const SIZES: [usize; 4] = [6, 21, 21, 3];
 
 #[derive(Deserialize)]

@@ -119,6 +119,8 @@ pub struct LevelAssessment {
     pub true_flip: Option<f64>,
     pub true_psnr: Option<f64>,
     pub coverage: Option<f64>,
+    /// The model the level's reconstruction interpolates on (`FittedPrior::kind`: two-lobes or pca).
+    pub prior: &'static str,
 }
 
 /// The loop's result.
@@ -199,6 +201,7 @@ impl Assessor {
             true_flip: None,
             true_psnr: None,
             coverage: None,
+            prior: rec.prior().map_or("none", |p| p.kind()),
         };
         let mut half_width = None;
         if let Some((prev, prev_image, _)) = &self.previous {
@@ -314,12 +317,13 @@ pub fn level_line(a: &LevelAssessment) -> String {
     };
     let truth = a.true_flip.map_or(String::new(), |t| format!(", true FLIP {t:.4}"));
     format!(
-        "level {} ({}x{}): {} directions, {:.1} min, {est}{truth}",
+        "level {} ({}x{}): {} directions, {:.1} min, prior {}, {est}{truth}",
         a.level,
         a.n,
         a.n,
         a.directions,
-        a.cumulative_seconds / 60.0
+        a.cumulative_seconds / 60.0,
+        a.prior
     )
 }
 

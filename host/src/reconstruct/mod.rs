@@ -4,6 +4,7 @@
 //! holds each node's residual against it as a ratio, looked up through the warp re-centred on the
 //! query's own wi. This module never reads the planner: it reads a level through `Levels`.
 
+pub mod pca;
 pub mod prior;
 
 pub use prior::{FittedPrior, LevelSamples, NoPrior, OtherModel, Prior, TwoLobesPrior, SHARP_FLOOR_SHARE};
@@ -21,6 +22,8 @@ pub enum ReconstructError {
     TooFewValues { level: usize, need: usize, got: usize },
     #[error(transparent)]
     Brdf(#[from] BrdfError),
+    #[error("reconstruct: {0}")]
+    Basis(String),
 }
 
 /// One measured level as the reconstruction reads it.
@@ -68,14 +71,18 @@ pub fn level_keeps_residual(layout: NodeLayout, n: usize) -> bool {
 /// The product reconstruction's settings in one line (a scan records them; a resume compares them).
 pub fn settings() -> String {
     format!(
-        "prior {}, ratio residual (floor {RATIO_FLOOR} /sr), query lookup",
-        TwoLobesPrior.name()
+        "prior two-lobes-or-pca-guarded ({} folds, ridge {}, unexplained <= {}), ratio residual (floor {RATIO_FLOOR} /sr), query lookup",
+        pca::selected::FOLDS,
+        pca::selected::PCA_RIDGE,
+        pca::selected::MAX_UNEXPLAINED
     )
 }
 
-/// The product's reconstruction of `level` from `values` (indexed like the measurements).
+/// The product's reconstruction of `level` from `values` (indexed like the measurements): on
+/// top of `pca::selected::product_prior`, whose basis is read (or built once) on first use.
 pub fn reconstruct(levels: &dyn Levels, level: usize, values: &[DVec3]) -> Result<Reconstruction, ReconstructError> {
-    reconstruct_with(levels, level, values, &TwoLobesPrior)
+    let prior = pca::selected::product_prior().map_err(ReconstructError::Basis)?;
+    reconstruct_with(levels, level, values, &prior)
 }
 
 /// `reconstruct` on top of another prior. Unmeasured nodes take their nearest measured neighbour's value.

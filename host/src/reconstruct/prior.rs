@@ -1,9 +1,11 @@
 //! What a reconstruction interpolates on top of: a model fitted to a level's own measurements.
 //!
-//! The product fits `TwoLobesPrior`; a trial is another `Prior` (docs/planner.md, "Adding a prior").
+//! The product fits `pca::SelectedPrior` (per level, `TwoLobesPrior` or the PCA basis); a trial is
+//! another `Prior` (docs/planner.md, "Adding a prior").
 
 use crate::brdf::fit_lobes::{self, DiffuseBound, LobeFresnel};
 use crate::brdf::Material;
+use crate::reconstruct::pca::bins::BinnedBrdf;
 use glam::DVec3;
 use std::sync::Arc;
 
@@ -85,8 +87,10 @@ impl Prior for NoPrior {
 /// The model a prior fitted to a level's measurements.
 #[derive(Clone, Debug)]
 pub enum FittedPrior {
-    /// The product's model.
+    /// The two-lobe model.
     TwoLobes(fit_lobes::TwoLobes),
+    /// The PCA basis' fit, tabulated (`pca::PcaPrior`).
+    Basis(Arc<BinnedBrdf>),
     /// A lab trial's model, with its one-line description (the product fits only two lobes).
     Other(OtherModel),
 }
@@ -109,6 +113,7 @@ impl Material for FittedPrior {
     fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
         match self {
             FittedPrior::TwoLobes(m) => m.eval(wi, wo),
+            FittedPrior::Basis(m) => m.eval(wi, wo),
             FittedPrior::Other(m) => m.model.eval(wi, wo),
         }
     }
@@ -119,7 +124,17 @@ impl FittedPrior {
     pub fn describe(&self) -> String {
         match self {
             FittedPrior::TwoLobes(m) => m.describe(),
+            FittedPrior::Basis(_) => "pca basis fit (32 x 32 x 64 bins)".to_string(),
             FittedPrior::Other(m) => m.describe.clone(),
+        }
+    }
+
+    /// Which model it is, in a word for the scan's level lines.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            FittedPrior::TwoLobes(_) => "two-lobes",
+            FittedPrior::Basis(_) => "pca",
+            FittedPrior::Other(_) => "other",
         }
     }
 }

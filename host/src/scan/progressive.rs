@@ -121,18 +121,19 @@ pub fn levels_markdown(levels: &[LevelAssessment], stop_reason: &str, rule: &str
     );
     let _ = writeln!(
         md,
-        "| level | N | directions | instrument min | change FLIP | estimated FLIP [90%] | estimated PSNR | interval half-width (ln) | true FLIP | true PSNR | truth inside interval |"
+        "| level | N | directions | instrument min | prior | change FLIP | estimated FLIP [90%] | estimated PSNR | interval half-width (ln) | true FLIP | true PSNR | truth inside interval |"
     );
-    let _ = writeln!(md, "|---|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(md, "|---|---|---|---|---|---|---|---|---|---|---|---|");
     let f = |v: Option<f64>, p: usize| v.map_or("-".to_string(), |x| format!("{x:.p$}"));
     for a in levels {
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {:.1} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {:.1} | {} | {} | {} | {} | {} | {} | {} | {} |",
             a.level,
             a.n,
             a.directions,
             a.cumulative_seconds / 60.0,
+            a.prior,
             f(a.change_flip, 4),
             a.est_flip
                 .map_or("-".into(), |(e, lo, hi)| format!("{e:.4} [{lo:.4}, {hi:.4}]")),

@@ -1,7 +1,8 @@
-//! Trial priors of `gonio-lab tradeoff --prior`: each lost to the product's two-lobes
-//! (docs/tradeoff/README.md). One file, one `reconstruct::Prior` each; not used by a scan.
+//! Trial priors of `gonio-lab tradeoff --prior`: each lost to the product's prior (two-lobes until
+//! issue 28, now two-lobes-or-pca-guarded; docs/tradeoff/README.md, docs/nielsen2015.md). One file,
+//! one `reconstruct::Prior` each; not used by a scan.
 
-use super::nielsen::selected;
+use super::nielsen::selected::{self, SelectedPrior};
 use super::photo_samples::{self, PhotoSamples};
 use gonio::brdf::fit::{fit_samples, FitModel};
 use gonio::brdf::fit_lobes::{fit_two_lobes_bounded, DiffuseBound, LobeFresnel};
@@ -10,6 +11,7 @@ use std::sync::Arc;
 
 /// The names `--prior` takes: the product's first.
 pub const PRIOR_NAMES: [&str; 9] = [
+    "two-lobes-or-pca-guarded",
     "two-lobes",
     "none",
     "fit",
@@ -18,7 +20,6 @@ pub const PRIOR_NAMES: [&str; 9] = [
     "two-lobes-photo",
     "pca",
     "two-lobes-or-pca",
-    "two-lobes-or-pca-guarded",
 ];
 
 /// The prior called `name`; `photo` supplies the capture photo's pixels, asked for by two-lobes-photo only.
@@ -34,8 +35,12 @@ pub fn prior_by_name(
         "two-lobes-capped" => Box::new(CappedTwoLobesPrior),
         "two-lobes-photo" => Box::new(PhotoTwoLobesPrior { photo: photo()? }),
         "pca" => Box::new(selected::pca_prior()?),
-        "two-lobes-or-pca" => Box::new(selected::selected_prior()?),
-        "two-lobes-or-pca-guarded" => Box::new(selected::guarded_prior()?),
+        // The basis picked wherever it wins the cross-validation, without the product's span bound.
+        "two-lobes-or-pca" => Box::new(SelectedPrior {
+            max_unexplained: f64::INFINITY,
+            ..selected::product_prior()?
+        }),
+        "two-lobes-or-pca-guarded" => Box::new(selected::product_prior()?),
         other => return Err(format!("unknown prior {other:?} (one of {})", PRIOR_NAMES.join(", "))),
     })
 }

@@ -58,6 +58,7 @@ fn a_target_not_met_stops_at_the_deepest_level_and_says_so() {
         true_flip: None,
         true_psnr: None,
         coverage: None,
+        prior: "two-lobes",
     };
     assert_eq!(decide(&StopRule::TargetFlip(0.01), &a, 4), None);
     let line = decide(&StopRule::TargetFlip(0.01), &a, 3).expect("stops at the deepest level");

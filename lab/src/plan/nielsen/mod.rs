@@ -2,26 +2,20 @@
 //! reflectance acquisition" (TOG 2015), in the lab only (docs/nielsen2015.md says what is the same
 //! as the paper and what differs, and why).
 //!
-//! * `bins`: the 32 x 32 x 64 (theta_h, theta_d, phi_d) bins, the log mapping, the binned BRDF.
-//! * `basis`: the PCA basis of the training materials' tables (cached).
+//! * `gonio::reconstruct::pca` (the product's since issue 28, re-exported here): the bins, the
+//!   log mapping, the PCA basis of the training materials and the basis as a prior.
 //! * `select`: the condition-number direction selection over the bins this instrument reaches.
-//! * `selected`: the basis as a reconstruction prior, and the per-scan choice between it and the
-//!   product's two-lobe prior by cross-validation over the scan's own measurements (issue 28).
 //! * here: the ridge fit of the basis coefficients to measurements at a selected set (its normal
-//!   equations factored once per set), and the caches.
+//!   equations factored once per set), and the selections' cache.
 
-pub mod basis;
-pub mod bins;
 pub mod select;
-pub mod selected;
+
+pub use gonio::reconstruct::pca::{basis, bins, centre_weights, selected, table, training_basis, training_names};
 
 use basis::Basis;
-use bins::{centre, cos_weight, map, unmap, BinnedBrdf, BINS};
+use bins::{centre, cos_weight, map, BinnedBrdf};
 use glam::DVec3;
-use gonio::brdf::nbrdf::NeuralBrdf;
-use gonio::brdf::Material;
 use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
-use rayon::prelude::*;
 use std::path::PathBuf;
 
 /// Ridge weight: noise variance of a mapped measurement against the coefficients' unit-variance
@@ -30,39 +24,12 @@ use std::path::PathBuf;
 /// prefers 0.003 or lower; the committed side-by-side runs used this one (docs/nielsen2015.md).
 pub const RIDGE: f64 = 0.03;
 
-/// Version of the cache files: bump it when the bins, the mapping or the selection change.
-const CACHE_VERSION: u32 = 1;
-
-/// The training materials: the bundled MERL fits less the encoder's fifteen held-out ones (never
-/// `../shared/data/rgl`).
-pub fn training_names() -> Vec<&'static str> {
-    let held: Vec<&str> = crate::plan::tradeoff::HELDOUT_MATERIALS
-        .iter()
-        .map(|m| m.trim_start_matches("nbrdf:"))
-        .collect();
-    NeuralBrdf::bundled_names().filter(|n| !held.contains(n)).collect()
-}
-
-/// Where the basis and the selections are cached: `$GONIO_LAB_CACHE`, else `target/gonio-lab-cache`.
+/// Where the selections are cached: `$GONIO_LAB_CACHE`, else `target/gonio-lab-cache` (the basis
+/// is the product's, cached by `gonio::reconstruct::pca::cache_dir`).
 pub fn cache_dir() -> PathBuf {
     std::env::var_os("GONIO_LAB_CACHE")
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from("target/gonio-lab-cache"))
-}
-
-/// The basis of the training materials, from the cache or built (about a minute) and cached.
-pub fn training_basis() -> Result<Basis, String> {
-    let names = training_names();
-    let tag = format!("nielsen-basis v{CACHE_VERSION} {}", names.join(","));
-    let path = cache_dir().join(format!("nielsen-basis-v{CACHE_VERSION}.bin"));
-    Basis::load_or_build(&path, &tag, || {
-        names
-            .iter()
-            .filter_map(|n| NeuralBrdf::bundled(n).ok())
-            .map(|m| Box::new(m) as Box<dyn Material>)
-            .collect()
-    })
-    .map_err(|e| format!("{}: {e}", path.display()))
 }
 
 /// A selected direction set with its ridge system factored once: fitting a material is then a
@@ -119,52 +86,32 @@ impl Design {
     }
 }
 
-/// Per bin: the clipped cosine product at its centre, 0 where the bin is invalid.
-pub fn centre_weights(basis: &Basis) -> Vec<f64> {
-    (0..BINS)
-        .into_par_iter()
-        .map(|b| match basis.valid[b].then(|| centre(b)).flatten() {
-            Some((wi, wo)) => cos_weight(wi, wo),
-            None => 0.0,
-        })
-        .collect()
-}
-
-/// The table of basis coefficients `coeffs` (per component, RGB), `weight` from `centre_weights`.
-pub fn table(basis: &Basis, weight: &[f64], coeffs: &[[f32; 3]]) -> BinnedBrdf {
-    let values = (0..BINS)
-        .into_par_iter()
-        .with_min_len(1024)
-        .map(|b| {
-            let w = weight[b];
-            if w <= 0.0 {
-                return [0.0f32; 3];
-            }
-            // The three channels in one pass over the bin's row (same sums, same order).
-            let mut y = [-0.0f32; 3];
-            for (u, co) in basis.row(b).iter().zip(coeffs) {
-                for (yc, cc) in y.iter_mut().zip(co) {
-                    *yc += u * cc;
-                }
-            }
-            y.map(|y| (unmap(basis.mean[b] + y as f64, basis.median[b]) / w) as f32)
-        })
-        .collect();
-    BinnedBrdf { values }
-}
-
 #[cfg(test)]
-mod tests {
-    use super::basis::tests::small;
+pub(crate) mod tests {
     use super::*;
-    use gonio::brdf::parse_material;
+    use gonio::brdf::{parse_material, Material};
 
-    /// A material inside the basis' span is recovered from a selected set of directions; the
-    /// held-out training list never holds a held-out material.
+    /// A basis of four analytic materials: quick to build in a debug test.
+    pub(crate) fn small() -> Basis {
+        let specs = [
+            "ggx:alpha=0.1,diffuse=0.2",
+            "ggx:alpha=0.3,diffuse=0.05",
+            "ggx:alpha=0.05,diffuse=0.5/0.3/0.1",
+            "lambert:albedo=0.4",
+        ];
+        Basis::build(
+            &specs
+                .iter()
+                .map(|s| parse_material(s).expect("spec"))
+                .collect::<Vec<_>>(),
+        )
+    }
+
+    /// A material inside the basis' span is recovered from a selected set of directions.
     #[test]
     fn a_material_of_the_training_set_is_recovered_from_few_directions() {
         let basis = small();
-        let candidates: Vec<usize> = (0..BINS).filter(|&b| basis.valid[b]).collect();
+        let candidates: Vec<usize> = (0..bins::BINS).filter(|&b| basis.valid[b]).collect();
         let set = select::select(&basis, &candidates, 2 * basis.k());
         let design = Design::new(&basis, set, 1e-6).expect("design");
         let truth = parse_material("ggx:alpha=0.1,diffuse=0.2").expect("spec");
@@ -176,8 +123,5 @@ mod tests {
             (got - want).abs().max_element() < 0.02 * want.max_element() + 1e-3,
             "{got} vs {want}"
         );
-        let names = training_names();
-        assert_eq!(names.len(), NeuralBrdf::bundled_names().count() - 15);
-        assert!(!names.contains(&"tungsten-carbide"));
     }
 }

@@ -185,7 +185,7 @@ fn augment(basis: &Basis, candidates: &[usize], set: &mut Vec<usize>, n: usize) 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::plan::nielsen::basis::tests::small;
+    use crate::plan::nielsen::tests::small;
 
     /// The greedy set is far better conditioned than the first bins in index order, local moves
     /// never make it worse, and augmentation reaches the count with distinct bins.

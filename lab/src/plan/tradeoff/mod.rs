@@ -23,7 +23,7 @@ use gonio::brdf::parse_material;
 use gonio::encoder::capture::capture_scene;
 use gonio::encoder::infer::Encoder;
 use gonio::encoder::ModelKind;
-use gonio::reconstruct::{reconstruct_with, Prior, TwoLobesPrior};
+use gonio::reconstruct::reconstruct_with;
 use gonio::render::render_with;
 use gonio::render::{Image, Scene};
 use gonio_shared::instrument::InstrumentConfig;
@@ -160,7 +160,7 @@ impl Default for TradeoffConfig {
             paper: false,
             preset: None,
             // The product's prior, so the report scores what a scan would produce.
-            prior: TwoLobesPrior.name().to_string(),
+            prior: crate::plan::trials::PRIOR_NAMES[0].to_string(),
             renders: false,
         }
     }

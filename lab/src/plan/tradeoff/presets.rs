@@ -69,24 +69,7 @@ pub const TRAINING_POOL_MATERIALS: [&str; 26] = [
     "nbrdf:white-acrylic",
     "nbrdf:green-acrylic",
 ];
-/// The encoder's held-out MERL test materials (`host/models/README.md`): never seen in training.
-pub const HELDOUT_MATERIALS: [&str; 15] = [
-    "nbrdf:black-oxidized-steel",
-    "nbrdf:blue-metallic-paint2",
-    "nbrdf:color-changing-paint1",
-    "nbrdf:delrin",
-    "nbrdf:gray-plastic",
-    "nbrdf:green-metallic-paint2",
-    "nbrdf:maroon-plastic",
-    "nbrdf:pearl-paint",
-    "nbrdf:polyurethane-foam",
-    "nbrdf:red-metallic-paint",
-    "nbrdf:special-walnut-224",
-    "nbrdf:specular-violet-phenolic",
-    "nbrdf:tungsten-carbide",
-    "nbrdf:white-fabric2",
-    "nbrdf:yellow-plastic",
-];
+pub use gonio::brdf::nbrdf::HELDOUT_MATERIALS;
 
 /// The three real pgII measurements of `../shared/data/rgl` (RGL database, CC0), as specs relative
 /// to the repository root: every accuracy claim is reported on them too (DESIGN.md).

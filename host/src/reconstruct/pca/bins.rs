@@ -2,10 +2,10 @@
 //! on a square-root scale, phi_d folded into [0, pi) by reciprocity), Nielsen et al.'s log mapping of
 //! a bin's value, and a table of such bins as a `Material` (trilinear between bin centres).
 
+use crate::brdf::half_diff::from_half_diff;
+use crate::brdf::merl::{layout_coords, layout_trilinear};
+use crate::brdf::Material;
 use glam::DVec3;
-use gonio::brdf::half_diff::from_half_diff;
-use gonio::brdf::merl::{layout_coords, layout_trilinear};
-use gonio::brdf::Material;
 use std::f64::consts::{FRAC_PI_2, PI};
 
 pub const N_THETA_H: usize = 32;

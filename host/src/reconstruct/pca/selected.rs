@@ -1,4 +1,4 @@
-//! The peer's basis as a reconstruction prior, and the per-scan choice between it and the product's
+//! The PCA basis as a reconstruction prior, and the product's per-level choice between it and the
 //! two-lobe prior (issue 28; figures in docs/nielsen2015.md).
 //!
 //! `PcaPrior`: the ridge fit of the basis coefficients to a level's measurements, each measured
@@ -6,35 +6,28 @@
 //! `SelectedPrior`: K-fold cross-validation over the level's own measurements (folds interleaved
 //! in measurement order), each prior fitted on K - 1 folds and scored on the left-out one by the
 //! two-lobe fit's own error (|log(1 + f cos_o) - log(1 + f_rec cos_o)|, weighted by the equal-angle
-//! measure each sample stands for); the prior with the lower total is fitted to all measurements.
-//! An optional `Guard` (the "guarded" trial) also refuses the basis when the scan looks outside its
-//! span: the basis fit's in-sample residual in the basis' own (log-mapped) space above a bound, or
-//! the basis winning the cross-validation on too few folds. No ground truth is read.
+//! measure each sample stands for). The basis is picked when it has the lower total **and** the
+//! scan looks inside its span: its fit leaves at most `max_unexplained` of the level's log-mapped
+//! values unexplained (`SpanResidual::relative`). No ground truth is read.
 
 use super::basis::Basis;
 use super::bins::{coords, cos_weight, index, map, unmap, N_PHI_D, N_THETA_D, N_THETA_H};
 use super::{centre_weights, table};
+use crate::brdf::Material;
+use crate::reconstruct::{FittedPrior, LevelSamples, Prior, TwoLobesPrior};
 use glam::DVec3;
-use gonio::brdf::Material;
-use gonio::reconstruct::{FittedPrior, LevelSamples, OtherModel, Prior, TwoLobesPrior};
 use nalgebra::{Cholesky, DMatrix, DVector};
 use std::sync::Arc;
 
-/// Ridge of `PcaPrior` (a noise variance against the unit prior of each component): chosen by
-/// `cargo run --release -p gonio-lab --example prior_choice_check` on the training materials.
+/// Ridge of `PcaPrior` (a noise variance against the unit prior of each component), and the
+/// folds of `SelectedPrior`'s cross-validation: both chosen on the training materials by
+/// `cargo run --release -p gonio-lab --example prior_choice_check`.
 pub const PCA_RIDGE: f64 = 0.1;
-/// Folds of `SelectedPrior`'s cross-validation, and how much larger than the two lobes' the
-/// basis' cross-validated error may be and still be picked (both chosen by the same check).
 pub const FOLDS: usize = 5;
-pub const THRESHOLD: f64 = 1.0;
-/// `guarded_prior`'s guard, chosen by the same check on the training materials only (the most
-/// cautious guard within 0.005 summed log ratio of the unguarded trial): the basis fit may leave at
-/// most 20 % of the scan's centred log-mapped values unexplained (relative in-sample residual).
-pub const GUARD: Guard = Guard {
-    max_rms: f64::INFINITY,
-    max_relative: 0.2,
-    majority: false,
-};
+/// The largest share of a level's centred log-mapped values the basis fit may leave unexplained and
+/// still be picked: chosen by the same check (the most cautious bound that cost the training
+/// materials nothing); it refuses the basis on materials outside its span, e.g. the real iris paint.
+pub const MAX_UNEXPLAINED: f64 = 0.2;
 
 /// The training basis' model, loaded once per process.
 pub fn training_model() -> Result<Arc<PcaModel>, String> {
@@ -52,21 +45,13 @@ pub fn pca_prior() -> Result<PcaPrior, String> {
     })
 }
 
-/// `SelectedPrior` of the training basis at `PCA_RIDGE` and `FOLDS`.
-pub fn selected_prior() -> Result<SelectedPrior, String> {
+/// The product's prior: `SelectedPrior` of the training basis at `PCA_RIDGE`, `FOLDS` and
+/// `MAX_UNEXPLAINED`.
+pub fn product_prior() -> Result<SelectedPrior, String> {
     Ok(SelectedPrior {
         pca: pca_prior()?,
         folds: FOLDS,
-        threshold: THRESHOLD,
-        guard: None,
-    })
-}
-
-/// `selected_prior` with `GUARD`.
-pub fn guarded_prior() -> Result<SelectedPrior, String> {
-    Ok(SelectedPrior {
-        guard: Some(GUARD),
-        ..selected_prior()?
+        max_unexplained: MAX_UNEXPLAINED,
     })
 }
 
@@ -171,10 +156,11 @@ impl Prior for PcaPrior {
     }
     fn fit(&self, s: &LevelSamples<'_>) -> Option<FittedPrior> {
         let coeffs = self.model.coefficients(&s.pairs, s.values, self.ridge)?;
-        Some(FittedPrior::Other(OtherModel {
-            model: Arc::new(table(&self.model.basis, &self.model.weight, &coeffs)),
-            describe: format!("pca ridge={} k={}", self.ridge, self.model.basis.k()),
-        }))
+        Some(FittedPrior::Basis(Arc::new(table(
+            &self.model.basis,
+            &self.model.weight,
+            &coeffs,
+        ))))
     }
 }
 
@@ -188,27 +174,7 @@ pub struct SpanResidual {
     pub relative: f64,
 }
 
-/// When the basis may be picked besides winning the cross-validation on the total: its
-/// `SpanResidual` at most `max_rms` and `max_relative`, and (with `majority`) lower error than the
-/// two lobes on more than half of the folds. All measured on the level's own measurements.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Guard {
-    pub max_rms: f64,
-    pub max_relative: f64,
-    pub majority: bool,
-}
-
-impl Guard {
-    /// Whether the guard lets the basis be picked, given its residual and per-fold errors
-    /// ((two lobes, basis) per fold).
-    pub fn allows(&self, residual: Option<SpanResidual>, folds: &[(f64, f64)]) -> bool {
-        let wins = folds.iter().filter(|(lobes, pca)| pca < lobes).count();
-        residual.is_some_and(|r| r.rms <= self.max_rms && r.relative <= self.max_relative)
-            && (!self.majority || 2 * wins > folds.len())
-    }
-}
-
-/// Which prior the cross-validation picked, with both totals, and what the guard saw.
+/// Which prior the cross-validation picked, with both totals and the basis fit's residual.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Choice {
     pub pca: bool,
@@ -216,40 +182,30 @@ pub struct Choice {
     pub pca_err: f64,
     /// The basis fit's in-sample residual on all the level's measurements (None: no fit).
     pub residual: Option<SpanResidual>,
-    /// Folds on which the basis had the lower error.
-    pub pca_fold_wins: usize,
 }
 
-/// The per-scan choice between `TwoLobesPrior` and `PcaPrior` (see the module doc).
+/// The per-level choice between `TwoLobesPrior` and `PcaPrior` (see the module doc).
 pub struct SelectedPrior {
     pub pca: PcaPrior,
     pub folds: usize,
-    /// The basis is picked when its CV error is below `threshold` x the two lobes'.
-    pub threshold: f64,
-    /// None: today's trial (`two-lobes-or-pca`); Some: `two-lobes-or-pca-guarded`.
-    pub guard: Option<Guard>,
+    /// The basis is refused above this relative residual (infinite: the lab's unguarded trial).
+    pub max_unexplained: f64,
 }
 
 impl SelectedPrior {
     /// The cross-validated errors of both priors on `s`, and the choice (two lobes when neither
-    /// has an error: too few samples, or when the guard refuses the basis).
+    /// has an error: too few samples, or when the scan looks outside the basis' span).
     pub fn choose(&self, s: &LevelSamples<'_>) -> Choice {
-        let per_fold: Vec<(f64, f64)> = cross_validate_folds(&self.pca.model, s, self.folds, &[self.pca.ridge])
+        let (two_lobes_err, pca_err) = cross_validate_folds(&self.pca.model, s, self.folds, &[self.pca.ridge])
             .into_iter()
-            .map(|(lobes, pca)| (lobes, pca[0]))
-            .collect();
-        let (two_lobes_err, pca_err) = per_fold.iter().fold((0.0, 0.0), |(a, b), (l, p)| (a + l, b + p));
-        let residual = match self.guard {
-            Some(_) => self.pca.model.span_residual(&s.pairs, s.values, self.pca.ridge),
-            None => None,
-        };
-        let guard_allows = self.guard.is_none_or(|g| g.allows(residual, &per_fold));
+            .fold((0.0, 0.0), |(a, b), (l, p)| (a + l, b + p[0]));
+        let residual = self.pca.model.span_residual(&s.pairs, s.values, self.pca.ridge);
+        let inside = residual.is_some_and(|r| r.relative <= self.max_unexplained);
         Choice {
-            pca: pca_err < self.threshold * two_lobes_err && guard_allows,
+            pca: pca_err < two_lobes_err && inside,
             two_lobes_err,
             pca_err,
             residual,
-            pca_fold_wins: per_fold.iter().filter(|(l, p)| p < l).count(),
         }
     }
 }
@@ -320,24 +276,17 @@ fn weighted_log_err(want: DVec3, got: DVec3, cos_o: f64, weight: f64) -> f64 {
 
 impl Prior for SelectedPrior {
     fn name(&self) -> &'static str {
-        match self.guard {
-            None => "two-lobes-or-pca",
-            Some(_) => "two-lobes-or-pca-guarded",
+        if self.max_unexplained.is_finite() {
+            "two-lobes-or-pca-guarded"
+        } else {
+            "two-lobes-or-pca"
         }
     }
     fn about(&self) -> &'static str {
-        match self.guard {
-            None => {
-                " (per level, two-lobes or pca, whichever has the lower K-fold cross-validated log error \
-                 over the level's own measurements, weighted as the two-lobe fit weighs them; then the \
-                 grid interpolates the residuals of the chosen one)"
-            }
-            Some(_) => {
-                " (as two-lobes-or-pca, but pca only where the level's measurements look inside the \
-                 basis' span: the basis fit's in-sample log-mapped residual within the guard's bounds, \
-                 and the cross-validation won on the guard's share of folds)"
-            }
-        }
+        " (per level, two-lobes or the PCA basis of the training MERL fits, whichever has the lower \
+         K-fold cross-validated log error over the level's own measurements, the basis only where \
+         its fit explains all but a bounded share of them; then the grid interpolates the residuals \
+         of the chosen one)"
     }
     fn fit(&self, s: &LevelSamples<'_>) -> Option<FittedPrior> {
         match self.choose(s).pca {
@@ -350,7 +299,7 @@ impl Prior for SelectedPrior {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use gonio::brdf::{parse_material, Material};
+    use crate::brdf::{parse_material, Material};
 
     /// A retro-reflective lobe plus Lambert: what two GGX lobes cannot fit.
     struct Retro {
@@ -391,15 +340,14 @@ mod tests {
     }
 
     /// The selected prior on `retro_basis`, 5 folds, threshold 1.
-    fn retro_prior(guard: Option<Guard>) -> SelectedPrior {
+    fn retro_prior(max_unexplained: f64) -> SelectedPrior {
         SelectedPrior {
             pca: PcaPrior {
                 model: Arc::new(PcaModel::new(retro_basis())),
                 ridge: 1e-3,
             },
             folds: 5,
-            threshold: 1.0,
-            guard,
+            max_unexplained,
         }
     }
 
@@ -419,7 +367,7 @@ mod tests {
     /// two lobes fit exactly (a sharp GGX lobe) picks the two lobes; degenerate inputs stay finite.
     #[test]
     fn the_choice_follows_which_prior_predicts_left_out_samples() {
-        let prior = retro_prior(None);
+        let prior = retro_prior(f64::INFINITY);
         let run = |m: &dyn Material| with_samples(m, |s| (prior.choose(s), prior.fit(s).map(|p| p.describe())));
         let (inside, described) = run(&Retro { k: 0.8, kd: 0.2 });
         assert!(inside.pca, "{inside:?}");
@@ -463,55 +411,38 @@ mod tests {
         with_samples(m, |s| prior.choose(s))
     }
 
-    /// A material outside the basis' span that still wins the cross-validation against two lobes
-    /// (neither prior fits it: a wide tinted retro lobe under a sharp highlight) is refused the
-    /// basis by the residual bound; one inside it keeps the basis under the same guard.
+    /// A material outside the training basis' span (a wide tinted retro lobe under a sharp highlight)
+    /// is refused the basis by the bound on the unexplained share, whatever the cross-validation says.
     #[test]
-    fn the_guard_keeps_two_lobes_outside_the_span() {
-        let guard = Guard {
-            max_rms: 0.3,
-            max_relative: f64::INFINITY,
-            majority: false,
-        };
-        let mut prior = retro_prior(None);
+    fn the_bound_keeps_two_lobes_outside_the_span() {
+        let prior = product_prior().expect("training basis");
         let outside = Outside { w: 0.2, spec: 10.0 };
-        let inside = Retro { k: 0.8, kd: 0.2 };
-        let unguarded = choose_on(&prior, &outside);
-        assert!(unguarded.pca && unguarded.residual.is_none(), "{unguarded:?}");
-        prior.guard = Some(guard);
-        assert_eq!(prior.name(), "two-lobes-or-pca-guarded");
         let refused = choose_on(&prior, &outside);
         assert!(!refused.pca, "{refused:?}");
-        assert!(refused.residual.is_some_and(|r| r.rms > 0.3), "{refused:?}");
-        assert_eq!(refused.pca_err, unguarded.pca_err);
-        let kept = choose_on(&prior, &inside);
-        assert!(kept.pca, "{kept:?}");
-        assert!(kept.residual.is_some_and(|r| r.rms < 0.15), "{kept:?}");
-        assert_eq!(kept.pca_fold_wins, 5);
+        assert!(
+            refused.residual.is_some_and(|r| r.relative > MAX_UNEXPLAINED),
+            "{refused:?}"
+        );
+        let unguarded = SelectedPrior {
+            max_unexplained: f64::INFINITY,
+            ..product_prior().expect("training basis")
+        };
+        assert_eq!(unguarded.name(), "two-lobes-or-pca");
+        assert_eq!(choose_on(&unguarded, &outside).pca_err, refused.pca_err);
     }
 
-    /// Each part of the guard: the residual bounds, no fit at all, and the majority of folds.
+    /// The product's prior on the training basis (read from the cache, or built once per machine):
+    /// a training material (a felt) lies well inside its span; a sharp analytic highlight keeps two lobes.
     #[test]
-    fn the_guard_needs_every_condition() {
-        let guard = Guard {
-            max_rms: 0.3,
-            max_relative: 0.5,
-            majority: true,
-        };
-        let r = |rms, relative| Some(SpanResidual { rms, relative });
-        let wins3 = [(1.0, 0.5), (1.0, 0.5), (1.0, 0.5), (1.0, 2.0), (1.0, 2.0)];
-        let wins2 = [(1.0, 0.5), (1.0, 0.5), (1.0, 2.0), (1.0, 2.0), (1.0, 2.0)];
-        assert!(guard.allows(r(0.2, 0.4), &wins3));
-        assert!(!guard.allows(r(0.2, 0.4), &wins2));
-        assert!(!guard.allows(r(0.4, 0.4), &wins3));
-        assert!(!guard.allows(r(0.2, 0.6), &wins3));
-        assert!(!guard.allows(None, &wins3));
-        assert!(!guard.allows(r(0.2, 0.4), &[]));
-        let no_majority = Guard {
-            majority: false,
-            ..guard
-        };
-        assert!(no_majority.allows(r(0.2, 0.4), &wins2));
-        assert!(!no_majority.allows(r(f64::NAN, 0.4), &wins2));
+    fn a_training_felt_lies_inside_the_span_and_a_sharp_highlight_keeps_two_lobes() {
+        let prior = product_prior().expect("training basis");
+        assert_eq!(prior.name(), "two-lobes-or-pca-guarded");
+        let felt = crate::brdf::nbrdf::NeuralBrdf::bundled("pink-felt").expect("bundled");
+        let c = choose_on(&prior, &felt);
+        assert!(c.residual.is_some_and(|r| r.relative < 0.5 * MAX_UNEXPLAINED), "{c:?}");
+        assert!(c.pca_err.is_finite() && c.two_lobes_err.is_finite(), "{c:?}");
+        let sharp = parse_material("ggx:alpha=0.03,diffuse=0.05,specular=1").expect("spec");
+        let c = choose_on(&prior, sharp.as_ref());
+        assert!(!c.pca, "{c:?}");
     }
 }

@@ -1,14 +1,14 @@
-//! The peer's PCA basis (Nielsen et al. 2015, section 4): every training material tabulated at the
+//! A PCA basis of measured BRDFs (Nielsen et al. 2015, section 4): every training material tabulated at the
 //! bin centres, each bin's f cos_i cos_o log-mapped against the training set's per-bin median, each
 //! colour channel an observation, mean-centred, and the principal components from the Gram matrix
 //! of the observations (225 x 225 for 75 materials: far cheaper than an SVD over 65,536 bins).
 //! Built once and cached (`load_or_build`).
 
 use super::bins::{centre, cos_weight, map, BINS};
-use gonio::brdf::Material;
+use crate::brdf::Material;
 use nalgebra::{DMatrix, SymmetricEigen};
 use rayon::prelude::*;
-use std::io::{Read, Write};
+use std::io::Read;
 use std::path::Path;
 
 /// Components whose variance is below this fraction of the largest are dropped (numerical rank).
@@ -108,12 +108,19 @@ impl Basis {
         }
     }
 
-    /// Read the cache at `path` if it holds a basis with this `tag`, else build and write it.
+    /// Read the cache at `path` if it holds a basis with this `tag`, else build and write it. One
+    /// process builds while the others wait on a lock beside the file (parallel tests on a cold machine).
     pub fn load_or_build(
         path: &Path,
         tag: &str,
         materials: impl FnOnce() -> Vec<Box<dyn Material>>,
     ) -> std::io::Result<Self> {
+        if let Ok(b) = Self::read(path, tag) {
+            return Ok(b);
+        }
+        std::fs::create_dir_all(crate::fsio::parent_dir(path))?;
+        let lock = std::fs::File::create(path.with_extension("lock"))?;
+        lock.lock()?;
         if let Ok(b) = Self::read(path, tag) {
             return Ok(b);
         }
@@ -135,13 +142,7 @@ impl Basis {
             out.extend_from_slice(&v.to_le_bytes());
         }
         out.extend(self.valid.iter().map(|&v| v as u8));
-        if let Some(dir) = path.parent() {
-            std::fs::create_dir_all(dir)?;
-        }
-        let mut tmp = tempfile::NamedTempFile::new_in(path.parent().unwrap_or(Path::new(".")))?;
-        tmp.write_all(&out)?;
-        tmp.persist(path).map_err(|e| e.error)?;
-        Ok(())
+        crate::fsio::write_bytes_atomically(path, &out)
     }
 
     fn read(path: &Path, tag: &str) -> std::io::Result<Self> {
@@ -208,7 +209,7 @@ pub fn tabulate(materials: &[Box<dyn Material>]) -> Vec<Vec<f64>> {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use gonio::brdf::parse_material;
+    use crate::brdf::parse_material;
 
     pub(crate) fn small() -> Basis {
         let specs = [
