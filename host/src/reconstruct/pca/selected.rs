@@ -17,6 +17,7 @@ use crate::brdf::Material;
 use crate::reconstruct::{FittedPrior, LevelSamples, Prior, TwoLobesPrior};
 use glam::DVec3;
 use nalgebra::{Cholesky, DMatrix, DVector};
+use rayon::prelude::*;
 use std::sync::Arc;
 
 /// Ridge of `PcaPrior` (a noise variance against the unit prior of each component), and the
@@ -237,34 +238,36 @@ pub fn cross_validate_folds(
     if usable.len() < 2 * k {
         return Vec::new();
     }
-    let mut out = Vec::with_capacity(k);
-    for fold in 0..k {
-        let (mut lobes_err, mut pca_err) = (0.0, vec![0.0; ridges.len()]);
-        let (test, train): (Vec<_>, Vec<_>) = usable.iter().enumerate().partition(|(n, _)| n % k == fold);
-        let train: Vec<usize> = train.into_iter().map(|(_, &i)| i).collect();
-        let values: Vec<DVec3> = train.iter().map(|&i| s.values[i]).collect();
-        let sub = LevelSamples {
-            pairs: train.iter().map(|&i| s.pairs[i]).collect(),
-            values: &values,
-            weights: train.iter().map(|&i| s.weights[i]).collect(),
-            estimate_alpha: s.estimate_alpha,
-        };
-        let lobes = TwoLobesPrior.fit(&sub);
-        let coeffs: Vec<_> = ridges
-            .iter()
-            .map(|&r| model.coefficients(&sub.pairs, &values, r))
-            .collect();
-        for &(_, &i) in &test {
-            let (wi, wo) = s.pairs[i];
-            let err = |f: DVec3| weighted_log_err(s.values[i], f, wo.z, s.weights[i]);
-            lobes_err += lobes.as_ref().map_or(f64::INFINITY, |p| err(p.eval(wi, wo)));
-            for (e, c) in pca_err.iter_mut().zip(&coeffs) {
-                *e += c.as_ref().map_or(f64::INFINITY, |c| err(model.value_at(c, wi, wo)));
+    // The folds are independent fits: in parallel (the two-lobe fits are most of a level's host time).
+    (0..k)
+        .into_par_iter()
+        .map(|fold| {
+            let (mut lobes_err, mut pca_err) = (0.0, vec![0.0; ridges.len()]);
+            let (test, train): (Vec<_>, Vec<_>) = usable.iter().enumerate().partition(|(n, _)| n % k == fold);
+            let train: Vec<usize> = train.into_iter().map(|(_, &i)| i).collect();
+            let values: Vec<DVec3> = train.iter().map(|&i| s.values[i]).collect();
+            let sub = LevelSamples {
+                pairs: train.iter().map(|&i| s.pairs[i]).collect(),
+                values: &values,
+                weights: train.iter().map(|&i| s.weights[i]).collect(),
+                estimate_alpha: s.estimate_alpha,
+            };
+            let lobes = TwoLobesPrior.fit(&sub);
+            let coeffs: Vec<_> = ridges
+                .iter()
+                .map(|&r| model.coefficients(&sub.pairs, &values, r))
+                .collect();
+            for &(_, &i) in &test {
+                let (wi, wo) = s.pairs[i];
+                let err = |f: DVec3| weighted_log_err(s.values[i], f, wo.z, s.weights[i]);
+                lobes_err += lobes.as_ref().map_or(f64::INFINITY, |p| err(p.eval(wi, wo)));
+                for (e, c) in pca_err.iter_mut().zip(&coeffs) {
+                    *e += c.as_ref().map_or(f64::INFINITY, |c| err(model.value_at(c, wi, wo)));
+                }
             }
-        }
-        out.push((lobes_err, pca_err));
-    }
-    out
+            (lobes_err, pca_err)
+        })
+        .collect()
 }
 
 /// The two-lobe fit's error of `got` against `want` at cos_o, times the sample's weight (RGB mean).
