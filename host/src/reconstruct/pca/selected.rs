@@ -194,12 +194,17 @@ pub struct SelectedPrior {
 }
 
 impl SelectedPrior {
+    /// The cross-validated totals (two lobes, basis) on `s`; zeros with too few samples.
+    fn cross_validated(&self, s: &LevelSamples<'_>) -> (f64, f64) {
+        cross_validate_folds(&self.pca.model, s, self.folds, &[self.pca.ridge])
+            .into_iter()
+            .fold((0.0, 0.0), |(a, b), (l, p)| (a + l, b + p[0]))
+    }
+
     /// The cross-validated errors of both priors on `s`, and the choice (two lobes when neither
     /// has an error: too few samples, or when the scan looks outside the basis' span).
     pub fn choose(&self, s: &LevelSamples<'_>) -> Choice {
-        let (two_lobes_err, pca_err) = cross_validate_folds(&self.pca.model, s, self.folds, &[self.pca.ridge])
-            .into_iter()
-            .fold((0.0, 0.0), |(a, b), (l, p)| (a + l, b + p[0]));
+        let (two_lobes_err, pca_err) = self.cross_validated(s);
         let residual = self.pca.model.span_residual(&s.pairs, s.values, self.pca.ridge);
         let inside = residual.is_some_and(|r| r.relative <= self.max_unexplained);
         Choice {
@@ -291,10 +296,21 @@ impl Prior for SelectedPrior {
          its fit explains all but a bounded share of them; then the grid interpolates the residuals \
          of the chosen one)"
     }
+    /// As `choose`, but the cross-validation is skipped when the bound already refuses the basis,
+    /// and the two lobes are fitted to all samples beside the folds: the same choice, in about the
+    /// time of the folds alone (issue 25's host time between levels).
     fn fit(&self, s: &LevelSamples<'_>) -> Option<FittedPrior> {
-        match self.choose(s).pca {
-            true => self.pca.fit(s).or_else(|| TwoLobesPrior.fit(s)),
-            false => TwoLobesPrior.fit(s),
+        let residual = self.pca.model.span_residual(&s.pairs, s.values, self.pca.ridge);
+        if !residual.is_some_and(|r| r.relative <= self.max_unexplained) {
+            return TwoLobesPrior.fit(s);
+        }
+        let (lobes, (lobes_err, pca_err)) = rayon::join(
+            || TwoLobesPrior.fit(s),
+            || self.cross_validated(s),
+        );
+        match pca_err < lobes_err {
+            true => self.pca.fit(s).or(lobes),
+            false => lobes,
         }
     }
 }
@@ -414,24 +430,52 @@ mod tests {
         with_samples(m, |s| prior.choose(s))
     }
 
-    /// A material outside the training basis' span (a wide tinted retro lobe under a sharp highlight)
-    /// is refused the basis by the bound on the unexplained share, whatever the cross-validation says.
+    /// The mean two-lobe-fit error of `m` against `truth` over 3,000 pairs spread over both
+    /// hemispheres (none of them `pairs()`).
+    fn true_err(truth: &dyn Material, m: &dyn Material) -> f64 {
+        let d = |t: f64, p: f64| DVec3::new(t.sin() * p.cos(), t.sin() * p.sin(), t.cos());
+        let n = 3000;
+        (0..n)
+            .map(|i| {
+                let wi = d(0.05 + 1.35 * ((i * 37) % n) as f64 / n as f64, 0.0);
+                let wo = d(0.02 + 1.45 * ((i * 101) % n) as f64 / n as f64, 0.61 * i as f64);
+                weighted_log_err(truth.eval(wi, wo), m.eval(wi, wo), wo.z, 1.0)
+            })
+            .sum::<f64>()
+            / n as f64
+    }
+
+    /// The bound overrides the cross-validation only above it: a tinted retro lobe under a
+    /// highlight leaves 0.2-0.3 of the scan unexplained by the retro basis; the cross-validation
+    /// prefers the basis, the bound 0.2 refuses it and a bound of 0.3 lets it through.
     #[test]
-    fn the_bound_keeps_two_lobes_outside_the_span() {
+    fn the_bound_overrides_the_cross_validation_only_above_it() {
+        let m = Outside { w: 0.05, spec: 1.0 };
+        let unguarded_prior = retro_prior(f64::INFINITY);
+        assert_eq!(unguarded_prior.name(), "two-lobes-or-pca");
+        let unguarded = choose_on(&unguarded_prior, &m);
+        let r = unguarded.residual.expect("a basis fit").relative;
+        assert!(unguarded.pca && r > 0.2 && r < 0.3, "{unguarded:?}");
+        let guarded = choose_on(&retro_prior(0.2), &m);
+        assert!(!guarded.pca, "{guarded:?}");
+        assert_eq!(guarded.pca_err, unguarded.pca_err);
+        assert!(choose_on(&retro_prior(0.3), &m).pca);
+    }
+
+    /// A material outside both priors (a wide tinted retro lobe under a sharp highlight) leaves the
+    /// training basis a large RMS residual but a small share unexplained: the product picks the basis,
+    /// and against the truth the basis is the closer of the two (the relative bound, not an RMS one,
+    /// is right to let it through; docs/nielsen2015.md).
+    #[test]
+    fn out_of_span_material_the_basis_fits_better_passes_the_bound() {
         let prior = product_prior().expect("training basis");
-        let outside = Outside { w: 0.2, spec: 10.0 };
-        let refused = choose_on(&prior, &outside);
-        assert!(!refused.pca, "{refused:?}");
-        assert!(
-            refused.residual.is_some_and(|r| r.relative > MAX_UNEXPLAINED),
-            "{refused:?}"
-        );
-        let unguarded = SelectedPrior {
-            max_unexplained: f64::INFINITY,
-            ..product_prior().expect("training basis")
-        };
-        assert_eq!(unguarded.name(), "two-lobes-or-pca");
-        assert_eq!(choose_on(&unguarded, &outside).pca_err, refused.pca_err);
+        let m = Outside { w: 0.2, spec: 10.0 };
+        let (c, fitted, lobes) = with_samples(&m, |s| (prior.choose(s), prior.fit(s), TwoLobesPrior.fit(s)));
+        let r = c.residual.expect("a basis fit");
+        assert!(c.pca && r.relative <= MAX_UNEXPLAINED && r.rms > 0.25, "{c:?}");
+        let fitted = fitted.expect("a fit");
+        assert_eq!(fitted.kind(), "pca");
+        assert!(true_err(&m, &fitted) < true_err(&m, &lobes.expect("two lobes")));
     }
 
     /// The product's prior on the training basis (read from the cache, or built once per machine):
@@ -441,8 +485,9 @@ mod tests {
         let prior = product_prior().expect("training basis");
         assert_eq!(prior.name(), "two-lobes-or-pca-guarded");
         let felt = crate::brdf::nbrdf::NeuralBrdf::bundled("pink-felt").expect("bundled");
-        let c = choose_on(&prior, &felt);
+        let (c, fitted) = with_samples(&felt, |s| (prior.choose(s), prior.fit(s).expect("a fit")));
         assert!(c.residual.is_some_and(|r| r.relative < 0.5 * MAX_UNEXPLAINED), "{c:?}");
+        assert_eq!(fitted.kind() == "pca", c.pca, "fit follows choose");
         assert!(c.pca_err.is_finite() && c.two_lobes_err.is_finite(), "{c:?}");
         let sharp = parse_material("ggx:alpha=0.03,diffuse=0.05,specular=1").expect("spec");
         let c = choose_on(&prior, sharp.as_ref());
