@@ -38,27 +38,13 @@ pub(super) fn solve_capped<const N: usize>(cols: &[&[f64]; N], t: &[f64], w: &[f
 fn solve_channel<const N: usize>(cols: &[&[f64]; N], t: &[f64], w: &[f64], offset: &[f64]) -> ([f64; N], f64) {
     let n = t.len();
     let off = |i: usize| offset.get(i).copied().unwrap_or(0.0);
-    let normal = |jac: &dyn Fn(usize) -> ([f64; N], f64, f64)| {
-        let mut a = [[0.0; N]; N];
-        let mut r = [0.0; N];
-        for i in 0..n {
-            let (j, y, wi) = jac(i);
-            for p in 0..N {
-                r[p] += wi * j[p] * y;
-                for q in 0..N {
-                    a[p][q] += wi * j[p] * j[q];
-                }
-            }
-        }
-        (a, r)
-    };
-    let (a, r) = normal(&|i| (std::array::from_fn(|p| cols[p][i]), t[i].exp_m1() - off(i), w[i]));
+    let (a, r) = normal_equations(n, |i| (std::array::from_fn(|p| cols[p][i]), t[i].exp_m1() - off(i), w[i]));
     let mut x = nnls(&a, &r);
     let mut best = loss(cols, t, w, offset, &x);
     for _ in 0..GN_ITERATIONS {
         // Linearised at x: minimise sum w (r_i + J_i (y - x))^2 over y >= 0, i.e. the NNLS with
         // right-hand side J_i . x - r_i.
-        let (a, rhs) = normal(&|i| {
+        let (a, rhs) = normal_equations(n, |i| {
             let f: f64 = off(i) + (0..N).map(|p| x[p] * cols[p][i]).sum::<f64>();
             let d = 1.0 + f;
             let j: [f64; N] = std::array::from_fn(|p| cols[p][i] / d);
@@ -83,6 +69,23 @@ fn solve_channel<const N: usize>(cols: &[&[f64]; N], t: &[f64], w: &[f64], offse
         }
     }
     (x, best)
+}
+
+/// The weighted normal equations (sum w J^T J, sum w J y) of rows `jac(i)` = (J_i, y_i, w_i), i < n:
+/// generic, not `dyn`, so the row is inlined (the two-lobe fit's hot loop).
+fn normal_equations<const N: usize>(n: usize, jac: impl Fn(usize) -> ([f64; N], f64, f64)) -> ([[f64; N]; N], [f64; N]) {
+    let mut a = [[0.0; N]; N];
+    let mut r = [0.0; N];
+    for i in 0..n {
+        let (j, y, wi) = jac(i);
+        for p in 0..N {
+            r[p] += wi * j[p] * y;
+            for q in 0..N {
+                a[p][q] += wi * j[p] * j[q];
+            }
+        }
+    }
+    (a, r)
 }
 
 /// Exact non-negative least squares in N (a handful of) unknowns from the normal equations
