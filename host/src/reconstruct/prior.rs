@@ -40,7 +40,8 @@ pub trait Prior: Send + Sync {
     fn fit(&self, samples: &LevelSamples<'_>) -> Option<FittedPrior>;
 }
 
-/// The product's prior: Lambert, a coated diffuse and two GGX lobes with a bounded Fresnel rise.
+/// Lambert, a coated diffuse and two GGX lobes with a bounded Fresnel rise: the product's prior
+/// wherever the PCA basis is not chosen (`pca::SelectedPrior`).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct TwoLobesPrior;
 
@@ -91,7 +92,7 @@ pub enum FittedPrior {
     TwoLobes(fit_lobes::TwoLobes),
     /// The PCA basis' fit, tabulated (`pca::PcaPrior`).
     Basis(Arc<BinnedBrdf>),
-    /// A lab trial's model, with its one-line description (the product fits only two lobes).
+    /// A lab trial's model, with its one-line description (the product fits two lobes or the basis).
     Other(OtherModel),
 }
 

@@ -94,15 +94,16 @@ fn the_loop_stops_early_on_a_rough_material_and_goes_deeper_on_a_sharp_one() {
 
 #[test]
 fn a_wrong_seed_still_converges() {
-    // The photo said rough; the sample is sharp: the loop must not stop on the seed's word, and
-    // its reconstruction must improve level after level.
+    // The photo said rough; the sample is sharp: the reconstruction must improve level after level
+    // (the loop never stops on the seed's word: level 1 has no estimate). Since the PCA prior,
+    // two-layer-silver (a training material) is close after level 1 already: true FLIP 0.017.
     let truth = "nbrdf:two-layer-silver";
     let plan = plan_for(&ggx_estimate(0.3, 0.2), 4);
-    let closed = simulate(&plan, truth, StopRule::TargetFlip(DEFAULT_TARGET_FLIP));
-    let flips: Vec<f64> = closed.levels.iter().filter_map(|a| a.true_flip).collect();
-    assert!(closed.stop_level > 2, "stopped at {} ({flips:?})", closed.stop_level);
-    let (first, last) = (flips[0], flips[flips.len() - 1]);
-    assert!(last < 0.5 * first, "true FLIP {flips:?}");
+    let deep = simulate(&plan, truth, StopRule::Depth);
+    let flips: Vec<f64> = deep.levels.iter().filter_map(|a| a.true_flip).collect();
+    assert_eq!(flips.len(), 4);
+    assert!(flips.windows(2).all(|w| w[1] <= 1.05 * w[0]), "true FLIP {flips:?}");
+    assert!(flips[3] < 0.5 * flips[0], "true FLIP {flips:?}");
 }
 
 #[test]
@@ -145,3 +146,4 @@ fn a_time_budget_measures_the_deepest_level_within_it() {
     assert_eq!(closed.stop_level, 2);
     assert!(StopRule::TimeBudget(1.0).last_level(&plan).is_err());
 }
+
