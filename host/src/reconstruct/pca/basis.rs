@@ -120,7 +120,8 @@ impl Basis {
         }
         std::fs::create_dir_all(crate::fsio::parent_dir(path))?;
         let lock = std::fs::File::create(path.with_extension("lock"))?;
-        lock.lock()?;
+        // fs4's, not std's `File::lock` (Rust 1.89, above the workspace's rust-version).
+        fs4::FileExt::lock(&lock)?;
         if let Ok(b) = Self::read(path, tag) {
             return Ok(b);
         }
