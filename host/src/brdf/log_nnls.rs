@@ -38,7 +38,9 @@ pub(super) fn solve_capped<const N: usize>(cols: &[&[f64]; N], t: &[f64], w: &[f
 fn solve_channel<const N: usize>(cols: &[&[f64]; N], t: &[f64], w: &[f64], offset: &[f64]) -> ([f64; N], f64) {
     let n = t.len();
     let off = |i: usize| offset.get(i).copied().unwrap_or(0.0);
-    let (a, r) = normal_equations(n, |i| (std::array::from_fn(|p| cols[p][i]), t[i].exp_m1() - off(i), w[i]));
+    let (a, r) = normal_equations(n, |i| {
+        (std::array::from_fn(|p| cols[p][i]), t[i].exp_m1() - off(i), w[i])
+    });
     let mut x = nnls(&a, &r);
     let mut best = loss(cols, t, w, offset, &x);
     for _ in 0..GN_ITERATIONS {
@@ -73,7 +75,10 @@ fn solve_channel<const N: usize>(cols: &[&[f64]; N], t: &[f64], w: &[f64], offse
 
 /// The weighted normal equations (sum w J^T J, sum w J y) of rows `jac(i)` = (J_i, y_i, w_i), i < n:
 /// generic, not `dyn`, so the row is inlined (the two-lobe fit's hot loop).
-fn normal_equations<const N: usize>(n: usize, jac: impl Fn(usize) -> ([f64; N], f64, f64)) -> ([[f64; N]; N], [f64; N]) {
+fn normal_equations<const N: usize>(
+    n: usize,
+    jac: impl Fn(usize) -> ([f64; N], f64, f64),
+) -> ([[f64; N]; N], [f64; N]) {
     let mut a = [[0.0; N]; N];
     let mut r = [0.0; N];
     for i in 0..n {

@@ -146,4 +146,3 @@ fn a_time_budget_measures_the_deepest_level_within_it() {
     assert_eq!(closed.stop_level, 2);
     assert!(StopRule::TimeBudget(1.0).last_level(&plan).is_err());
 }
-

@@ -304,10 +304,7 @@ impl Prior for SelectedPrior {
         if !residual.is_some_and(|r| r.relative <= self.max_unexplained) {
             return TwoLobesPrior.fit(s);
         }
-        let (lobes, (lobes_err, pca_err)) = rayon::join(
-            || TwoLobesPrior.fit(s),
-            || self.cross_validated(s),
-        );
+        let (lobes, (lobes_err, pca_err)) = rayon::join(|| TwoLobesPrior.fit(s), || self.cross_validated(s));
         match pca_err < lobes_err {
             true => self.pca.fit(s).or(lobes),
             false => lobes,
@@ -462,7 +459,10 @@ mod tests {
         assert!(choose_on(&retro_prior(0.3), &m).pca);
         // What the caution costs here: against the truth the refused basis is the closer prior.
         let (basis, lobes) = with_samples(&m, |s| (unguarded_prior.pca.fit(s), TwoLobesPrior.fit(s)));
-        let (basis, lobes) = (true_err(&m, &basis.expect("a fit")), true_err(&m, &lobes.expect("a fit")));
+        let (basis, lobes) = (
+            true_err(&m, &basis.expect("a fit")),
+            true_err(&m, &lobes.expect("a fit")),
+        );
         println!("retro basis, share {r:.3}: true error basis {basis:.4}, two lobes {lobes:.4}");
         assert!(basis < lobes);
     }
