@@ -488,6 +488,7 @@ pub fn summary(rows: &[LoopRow], title: &str, regenerate: &str) -> String {
             quantile(ratios.clone(), 1.0)
         );
     }
+    absolute_errors(&mut md, rows);
     equal_directions(&mut md, rows, &materials, "adaptive", "closed loop");
     for strategy in strategies(rows)
         .into_iter()
@@ -537,6 +538,38 @@ fn fmt_opt(v: Option<f64>) -> String {
 fn row_of<'a>(rows: &'a [LoopRow], material: &str, strategy: &str, level: usize) -> Option<&'a LoopRow> {
     rows.iter()
         .find(|r| r.material == material && r.strategy == strategy && r.level == level)
+}
+
+/// Per strategy and level: each metric's geometric mean over the materials (the figures the ratios
+/// below are made of, comparable across runs).
+fn absolute_errors(md: &mut String, rows: &[LoopRow]) {
+    let _ = writeln!(
+        md,
+        "\n## Errors (geometric mean over materials)\n\n| strategy | level | directions (max) | point FLIP | env FLIP | brdf_log_err |\n|---|---|---|---|---|---|"
+    );
+    let max_level = rows.iter().map(|r| r.level).max().unwrap_or(0);
+    for strategy in strategies(rows) {
+        for level in 1..=max_level {
+            let at: Vec<&LoopRow> = rows
+                .iter()
+                .filter(|r| r.strategy == strategy && r.level == level)
+                .collect();
+            let Some(directions) = at.iter().map(|r| r.directions).max() else {
+                continue;
+            };
+            let cells: Vec<String> = METRICS
+                .iter()
+                .map(|(_, metric)| {
+                    let v: Vec<f64> = at.iter().filter_map(|r| metric(r)).collect();
+                    // Five decimals: brdf_log_err is ~0.001.
+                    (!v.is_empty())
+                        .then(|| format!("{:.5}", geomean(&v)))
+                        .unwrap_or_else(|| "-".into())
+                })
+                .collect();
+            let _ = writeln!(md, "| {strategy} | {level} | {directions} | {} |", cells.join(" | "));
+        }
+    }
 }
 
 /// Per level and metric: geometric mean over materials of closed loop / uniform, and the worst material.
@@ -808,6 +841,11 @@ mod tests {
         // Level 1: ratios 2 and 0.5, geomean 1, worst 2 (the same on every metric).
         assert!(
             md.contains("| 1 | 1.000 | 2.000 | 1.000 | 2.000 | 1.000 | 2.000 | true |"),
+            "{md}"
+        );
+        // Absolute: adaptive level 1 errors 0.02 and 0.01 (geomean 0.01414), directions 10 each.
+        assert!(
+            md.contains("| adaptive | 1 | 10 | 0.01414 | 0.05657 | 0.02828 |"),
             "{md}"
         );
         // Level 2: 3 and 0.5.
