@@ -562,9 +562,11 @@ fn absolute_errors(md: &mut String, rows: &[LoopRow]) {
                 .map(|(_, metric)| {
                     let v: Vec<f64> = at.iter().filter_map(|r| metric(r)).collect();
                     // Five decimals: brdf_log_err is ~0.001.
-                    (!v.is_empty())
-                        .then(|| format!("{:.5}", geomean(&v)))
-                        .unwrap_or_else(|| "-".into())
+                    if v.is_empty() {
+                        "-".into()
+                    } else {
+                        format!("{:.5}", geomean(&v))
+                    }
                 })
                 .collect();
             let _ = writeln!(md, "| {strategy} | {level} | {directions} | {} |", cells.join(" | "));
