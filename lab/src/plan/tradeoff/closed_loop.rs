@@ -77,6 +77,9 @@ pub struct LoopRow {
     pub e_in: Option<f64>,
     #[serde(default)]
     pub e_out: Option<f64>,
+    /// The prior the level's reconstruction chose (`FittedPrior::kind`; absent in older csvs).
+    #[serde(default)]
+    pub prior: Option<String>,
 }
 
 /// Side (px) of the environment render the report scores (the point render's `ESTIMATE_SIZE`).
@@ -186,6 +189,7 @@ fn rows_of(material: &str, strategy: &str, levels: &[Scored], uniform: &[usize])
             schedule: None,
             e_in: None,
             e_out: None,
+            prior: Some(a.prior.to_string()),
         })
         .collect()
 }
@@ -464,6 +468,7 @@ pub fn summary(rows: &[LoopRow], title: &str, regenerate: &str) -> String {
         100.0 * quantile(coverage.clone(), 0.0),
         100.0 * quantile(coverage, 1.0)
     );
+    priors_chosen(&mut md, rows);
     let mut materials: Vec<&str> = rows.iter().map(|r| r.material.as_str()).collect();
     materials.dedup();
     let _ = writeln!(md, "## Stop rules (replayed on the recorded estimates)\n");
@@ -538,6 +543,39 @@ fn fmt_opt(v: Option<f64>) -> String {
 fn row_of<'a>(rows: &'a [LoopRow], material: &str, strategy: &str, level: usize) -> Option<&'a LoopRow> {
     rows.iter()
         .find(|r| r.material == material && r.strategy == strategy && r.level == level)
+}
+
+/// Per strategy: at how many levels the reconstruction chose each prior, and per level how many
+/// materials chose the PCA basis (rows from csvs that predate the column are left out).
+fn priors_chosen(md: &mut String, rows: &[LoopRow]) {
+    let max_level = rows.iter().map(|r| r.level).max().unwrap_or(0);
+    let mut lines = Vec::new();
+    for strategy in strategies(rows) {
+        let at = |level: usize| {
+            rows.iter()
+                .filter(move |r| r.strategy == strategy && (level == 0 || r.level == level))
+                .filter_map(|r| r.prior.as_deref())
+        };
+        let total = at(0).count();
+        if total == 0 {
+            continue;
+        }
+        let per_level: Vec<String> = (1..=max_level)
+            .map(|l| format!("{} of {}", at(l).filter(|p| *p == "pca").count(), at(l).count()))
+            .collect();
+        lines.push(format!(
+            "{strategy}: pca at {} of {total} levels (levels 1.. : {})",
+            at(0).filter(|p| *p == "pca").count(),
+            per_level.join(", ")
+        ));
+    }
+    if !lines.is_empty() {
+        let _ = writeln!(
+            md,
+            "Prior chosen per level (two lobes or the PCA basis): {}.\n",
+            lines.join("; ")
+        );
+    }
 }
 
 /// Per strategy and level: each metric's geometric mean over the materials (the figures the ratios
@@ -774,6 +812,7 @@ mod tests {
             schedule: None,
             e_in: None,
             e_out: None,
+            prior: Some(if level == 1 { "two-lobes" } else { "pca" }.into()),
         }
     }
 
@@ -843,6 +882,11 @@ mod tests {
         // Level 1: ratios 2 and 0.5, geomean 1, worst 2 (the same on every metric).
         assert!(
             md.contains("| 1 | 1.000 | 2.000 | 1.000 | 2.000 | 1.000 | 2.000 | true |"),
+            "{md}"
+        );
+        // The test rows pick the basis at level 2 only.
+        assert!(
+            md.contains("adaptive: pca at 2 of 4 levels (levels 1.. : 0 of 2, 2 of 2)"),
             "{md}"
         );
         // Absolute: adaptive level 1 errors 0.02 and 0.01 (geomean 0.01414), directions 10 each.
