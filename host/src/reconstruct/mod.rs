@@ -71,7 +71,8 @@ pub fn level_keeps_residual(layout: NodeLayout, n: usize) -> bool {
 /// The product reconstruction's settings in one line (a scan records them; a resume compares them).
 pub fn settings() -> String {
     format!(
-        "prior two-lobes-or-pca-guarded ({} folds, ridge {}, unexplained <= {}), ratio residual (floor {RATIO_FLOOR} /sr), query lookup",
+        "prior {} ({} folds, ridge {}, unexplained <= {}), ratio residual (floor {RATIO_FLOOR} /sr), query lookup",
+        pca::selected::NAME,
         pca::selected::FOLDS,
         pca::selected::PCA_RIDGE,
         pca::selected::MAX_UNEXPLAINED

@@ -35,11 +35,10 @@ pub fn prior_by_name(
         "two-lobes-capped" => Box::new(CappedTwoLobesPrior),
         "two-lobes-photo" => Box::new(PhotoTwoLobesPrior { photo: photo()? }),
         "pca" => Box::new(selected::pca_prior()?),
-        // The basis picked wherever it wins the cross-validation, without the product's span bound.
-        "two-lobes-or-pca" => Box::new(SelectedPrior {
+        "two-lobes-or-pca" => Box::new(UnguardedSelectedPrior(SelectedPrior {
             max_unexplained: f64::INFINITY,
             ..selected::product_prior()?
-        }),
+        })),
         "two-lobes-or-pca-guarded" => Box::new(selected::product_prior()?),
         other => return Err(format!("unknown prior {other:?} (one of {})", PRIOR_NAMES.join(", "))),
     })
@@ -53,6 +52,21 @@ pub fn needs_basis(name: &str) -> bool {
 /// Whether the prior called `name` reads the capture photo.
 pub fn needs_photo(name: &str) -> bool {
     name == "two-lobes-photo"
+}
+
+/// The product's choice without its span bound: the basis wherever it wins the cross-validation.
+pub struct UnguardedSelectedPrior(SelectedPrior);
+
+impl Prior for UnguardedSelectedPrior {
+    fn name(&self) -> &'static str {
+        "two-lobes-or-pca"
+    }
+    fn about(&self) -> &'static str {
+        self.0.about()
+    }
+    fn fit(&self, s: &LevelSamples<'_>) -> Option<FittedPrior> {
+        self.0.fit(s)
+    }
 }
 
 /// One GGX lobe plus Lambert (`brdf::fit::fit_samples`).

@@ -113,7 +113,7 @@ impl Basis {
     pub fn load_or_build(
         path: &Path,
         tag: &str,
-        materials: impl FnOnce() -> Vec<Box<dyn Material>>,
+        materials: impl FnOnce() -> Result<Vec<Box<dyn Material>>, String>,
     ) -> std::io::Result<Self> {
         if let Ok(b) = Self::read(path, tag) {
             return Ok(b);
@@ -125,7 +125,7 @@ impl Basis {
         if let Ok(b) = Self::read(path, tag) {
             return Ok(b);
         }
-        let b = Self::build(&materials());
+        let b = Self::build(&materials().map_err(std::io::Error::other)?);
         b.write(path, tag)?;
         Ok(b)
     }
@@ -248,5 +248,9 @@ pub(crate) mod tests {
         let again =
             Basis::load_or_build(&path, "t1", || panic!("the cache holds t1: nothing to build")).expect("cached");
         assert_eq!(again.k(), b.k());
+        // A builder that fails is an error, and the cache is left as it was.
+        let failed = Basis::load_or_build(&path, "t2", || Err("no material".into()));
+        assert!(failed.is_err_and(|e| e.to_string().contains("no material")));
+        assert_eq!(Basis::read(&path, "t1").expect("read"), b);
     }
 }

@@ -46,15 +46,19 @@ pub fn cache_dir() -> Option<PathBuf> {
 pub fn training_basis() -> Result<Basis, String> {
     let names = training_names();
     let tag = format!("gonio pca basis v{CACHE_VERSION} {}", names.join(","));
-    let build = || -> Vec<Box<dyn Material>> {
+    // Every training material or an error: a basis silently missing one would still carry the tag.
+    let build = || -> Result<Vec<Box<dyn Material>>, String> {
         names
             .iter()
-            .filter_map(|n| NeuralBrdf::bundled(n).ok())
-            .map(|m| Box::new(m) as Box<dyn Material>)
+            .map(|n| {
+                NeuralBrdf::bundled(n)
+                    .map(|m| Box::new(m) as Box<dyn Material>)
+                    .map_err(|e| format!("training material {n}: {e}"))
+            })
             .collect()
     };
     let Some(dir) = cache_dir() else {
-        return Ok(Basis::build(&build()));
+        return Ok(Basis::build(&build()?));
     };
     let path = dir.join(format!("pca-basis-v{CACHE_VERSION}.bin"));
     Basis::load_or_build(&path, &tag, build).map_err(|e| format!("the PCA basis cache {}: {e}", path.display()))

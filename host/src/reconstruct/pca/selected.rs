@@ -30,6 +30,9 @@ pub const FOLDS: usize = 5;
 /// materials nothing); it refuses the basis on materials outside its span, e.g. the real iris paint.
 pub const MAX_UNEXPLAINED: f64 = 0.2;
 
+/// The product prior's name (`--prior`, reports, the scan's settings).
+pub const NAME: &str = "two-lobes-or-pca-guarded";
+
 /// The training basis' model, loaded once per process.
 pub fn training_model() -> Result<Arc<PcaModel>, String> {
     static MODEL: std::sync::OnceLock<Result<Arc<PcaModel>, String>> = std::sync::OnceLock::new();
@@ -189,7 +192,7 @@ pub struct Choice {
 pub struct SelectedPrior {
     pub pca: PcaPrior,
     pub folds: usize,
-    /// The basis is refused above this relative residual (infinite: the lab's unguarded trial).
+    /// The basis is refused above this relative residual (`MAX_UNEXPLAINED` in the product).
     pub max_unexplained: f64,
 }
 
@@ -216,19 +219,8 @@ impl SelectedPrior {
     }
 }
 
-/// K-fold cross-validated total error of the two-lobe prior and of the basis fit at each of
-/// `ridges` on `s` (see the module doc); zeros (two lobes are kept) with fewer usable samples than
-/// two per fold.
-pub fn cross_validate(model: &PcaModel, s: &LevelSamples<'_>, folds: usize, ridges: &[f64]) -> (f64, Vec<f64>) {
-    let mut total = (0.0, vec![0.0; ridges.len()]);
-    for (lobes, pca) in cross_validate_folds(model, s, folds, ridges) {
-        total.0 += lobes;
-        total.1.iter_mut().zip(pca).for_each(|(t, e)| *t += e);
-    }
-    total
-}
-
-/// `cross_validate` per fold: (two lobes, per ridge) on each left-out fold; empty with fewer
+/// K-fold cross-validated error (see the module doc) per fold: (two lobes, the basis fit at each of
+/// `ridges`) on each left-out fold; empty (two lobes are kept) with fewer
 /// usable samples than two per fold.
 pub fn cross_validate_folds(
     model: &PcaModel,
@@ -284,11 +276,7 @@ fn weighted_log_err(want: DVec3, got: DVec3, cos_o: f64, weight: f64) -> f64 {
 
 impl Prior for SelectedPrior {
     fn name(&self) -> &'static str {
-        if self.max_unexplained.is_finite() {
-            "two-lobes-or-pca-guarded"
-        } else {
-            "two-lobes-or-pca"
-        }
+        NAME
     }
     fn about(&self) -> &'static str {
         " (per level, two-lobes or the PCA basis of the training MERL fits, whichever has the lower \
@@ -449,7 +437,6 @@ mod tests {
     fn the_bound_overrides_the_cross_validation_only_above_it() {
         let m = Outside { w: 0.05, spec: 1.0 };
         let unguarded_prior = retro_prior(f64::INFINITY);
-        assert_eq!(unguarded_prior.name(), "two-lobes-or-pca");
         let unguarded = choose_on(&unguarded_prior, &m);
         let r = unguarded.residual.expect("a basis fit").relative;
         assert!(unguarded.pca && r > 0.2 && r < 0.3, "{unguarded:?}");
