@@ -7,7 +7,7 @@ use super::{
 };
 use crate::brdf::frame::{from_spherical, phi_of, theta_of};
 use crate::brdf::grid::NodeLayout;
-use crate::brdf::warp::{MixtureWarp, SliceWarp, Warp, WarpKind};
+use crate::brdf::warp::{MixtureWarp, MixtureWeights, SliceWarp, Warp, WarpKind};
 use glam::{DVec2, DVec3};
 use gonio_shared::instrument::InstrumentConfig;
 use gonio_shared::kinematics::{Kinematics, Pose, Unreachable};
@@ -19,6 +19,7 @@ pub struct Planner {
     kin: Kinematics<f64>,
     firmware: FirmwareCheck,
     estimate: Estimate,
+    mixture: MixtureWeights,
 }
 
 /// A finest-level node (slice k, i, j).
@@ -78,7 +79,13 @@ impl Planner {
             kin,
             firmware,
             estimate,
+            mixture: MixtureWeights::PRODUCT,
         })
+    }
+
+    /// The same planner with other mixture weights (the lab's trials; the product keeps `PRODUCT`).
+    pub fn with_mixture_weights(self, mixture: MixtureWeights) -> Self {
+        Self { mixture, ..self }
     }
 
     /// A direction the planner may use: reachable in f64 (its IK candidates, for ordering and
@@ -102,11 +109,12 @@ impl Planner {
             Strategy::Uniform | Strategy::Auto => WarpKind::Uniform.for_incident(wi),
             Strategy::Mixture => {
                 let m = self.estimate.material();
-                SliceWarp::Mixture(std::sync::Arc::new(MixtureWarp::new(
+                SliceWarp::Mixture(std::sync::Arc::new(MixtureWarp::with_weights(
                     wi,
                     alpha.max(PLAN_ALPHA_MIN),
                     m.as_ref(),
                     MIXTURE_TABLE_RES,
+                    self.mixture,
                 )))
             }
         }

@@ -16,7 +16,8 @@ mod ward;
 pub use cosine::CosineHemisphere;
 pub use ggx::{GgxNdf, GgxVndf};
 pub use tabulated::{
-    Marginal2D, MixtureWarp, UniformAngles, MIXTURE_BASE_ALPHA_MIN, MIXTURE_SPECULAR_WEIGHT, MIXTURE_UNIFORM_WEIGHT,
+    Marginal2D, MixtureWarp, MixtureWeights, UniformAngles, MIXTURE_BASE_ALPHA_MIN, MIXTURE_SPECULAR_WEIGHT,
+    MIXTURE_UNIFORM_WEIGHT,
 };
 pub use ward::{ward_half_vector_pdf, WardHalfVector};
 

@@ -160,7 +160,8 @@ impl Marginal2D {
 /// Chosen on 14 MERL materials the encoder trained on (docs/tradeoff/README.md has the command),
 /// adaptive against uniform brdf_log_err wins of 56: (w_s, w_u) = (0.15, 0.5) 40, (0.3, 0.5) 41,
 /// (0.4, 0.5) 42, (0.5, 0.5) 43, (0.3, 0.6) 36; (0.4, 0.5) keeps a little f cos share and a worst
-/// 2 x 2 FLIP ratio close to (0.15, 0.5)'s (6.5x against 6.1x).
+/// 2 x 2 FLIP ratio close to (0.15, 0.5)'s (6.5x against 6.1x). Re-swept in the closed loop
+/// against point FLIP (`--trial mixture:`, docs/tradeoff/README.md): no pair wins all three metrics.
 pub const MIXTURE_SPECULAR_WEIGHT: f64 = 0.4;
 /// Weight of the equal-angle density (the uniform grid's layout): coverage of directions that
 /// neither the estimate nor the peak would visit, where a misestimated material may still reflect.
@@ -169,6 +170,26 @@ pub const MIXTURE_SPECULAR_WEIGHT: f64 = 0.4;
 /// encoder's 15 held-out MERL materials, `gonio tradeoff --preset heldout`, worst FLIP 8.0x the
 /// uniform grid's at 2 x 2, against 3.0x with these weights).
 pub const MIXTURE_UNIFORM_WEIGHT: f64 = 0.5;
+
+/// The mixture's (w_s, w_u) (w_f = 1 - w_s - w_u); the product plans with `MixtureWeights::PRODUCT`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MixtureWeights {
+    pub specular: f64,
+    pub uniform: f64,
+}
+
+impl MixtureWeights {
+    pub const PRODUCT: MixtureWeights = MixtureWeights {
+        specular: MIXTURE_SPECULAR_WEIGHT,
+        uniform: MIXTURE_UNIFORM_WEIGHT,
+    };
+
+    /// None unless both weights are in [0, 1] and their sum is at most 1.
+    pub fn new(specular: f64, uniform: f64) -> Option<Self> {
+        let unit = |w: f64| (0.0..=1.0).contains(&w);
+        (unit(specular) && unit(uniform) && specular + uniform <= 1.0).then_some(Self { specular, uniform })
+    }
+}
 /// Smallest alpha the mixture's visible-normal base uses. Below it, the whole hemisphere outside
 /// the peak maps into a sliver of u.x near 1 narrower than any table could resolve; the table then
 /// puts the peak's mass back where the estimate says it is.
@@ -193,6 +214,11 @@ pub struct MixtureWarp {
 impl MixtureWarp {
     /// Tabulate `estimate` for `wi` on a `res` x `res` vertex grid (x graded, see `table_xs`).
     pub fn new(wi: DVec3, alpha: f64, estimate: &dyn Material, res: usize) -> Self {
+        Self::with_weights(wi, alpha, estimate, res, MixtureWeights::PRODUCT)
+    }
+
+    /// `new` with other weights (the lab's trials of them).
+    pub fn with_weights(wi: DVec3, alpha: f64, estimate: &dyn Material, res: usize, weights: MixtureWeights) -> Self {
         let base_alpha = if alpha.is_finite() {
             alpha.max(MIXTURE_BASE_ALPHA_MIN)
         } else {
@@ -237,9 +263,9 @@ impl MixtureWarp {
         let (fi, vi, ai) = (integral(&fcos), integral(&valid), integral(&angles));
         // A black estimate has no f cos share; its weight goes to the specular layout.
         let (w_s, w_u) = if fi > 0.0 {
-            (MIXTURE_SPECULAR_WEIGHT, MIXTURE_UNIFORM_WEIGHT)
+            (weights.specular, weights.uniform)
         } else {
-            (1.0 - MIXTURE_UNIFORM_WEIGHT, MIXTURE_UNIFORM_WEIGHT)
+            (1.0 - weights.uniform, weights.uniform)
         };
         let w_f = 1.0 - w_s - w_u;
         let mut values: Vec<f64> = (0..nx * ny)

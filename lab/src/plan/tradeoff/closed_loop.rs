@@ -8,9 +8,12 @@
 //! the equal-directions ratios closed loop / uniform per level on point FLIP, environment FLIP
 //! (the noise-free quadrature render, `render::quadrature`) and `brdf_log_err`, and monotonicity.
 
-use super::{capture_photo, choose, photo_estimate, reseed, HELDOUT_MATERIALS, REAL_MATERIALS, TRAINING_MATERIALS};
+use super::{
+    capture_photo, choose, designed, photo_estimate, reseed, HELDOUT_MATERIALS, REAL_MATERIALS, TRAINING_MATERIALS,
+};
 use crate::plan::report::{csv, write};
 use gonio::brdf::parse_material;
+use gonio::brdf::warp::MixtureWeights;
 use gonio::encoder::infer::Encoder;
 use gonio::encoder::ModelKind;
 use gonio::plan::closed_loop::{self, Assessor, LevelAssessment};
@@ -99,6 +102,12 @@ pub enum Trial {
     /// Each level's elevations or outgoing grid chosen by the measurements (`choose`), one row
     /// set per constant c for the product's plan and the uniform grid: rows `adaptive choose c=C`.
     Choose(Vec<f64>),
+    /// The product's plan with other mixture weights (w_s, w_u), one row set per pair: rows
+    /// `adaptive mix s=S u=U` (materials the estimate plans on the uniform grid repeat `adaptive`).
+    Mixture(Vec<MixtureWeights>),
+    /// Level 1 the peer's condition-number design at the uniform grid's level-1 count, levels 2..
+    /// the photo plan's (`designed`), rows `designed`.
+    Designed,
 }
 
 impl Trial {
@@ -106,6 +115,21 @@ impl Trial {
     pub fn parse(s: &str) -> Result<Trial, String> {
         if s == "reseed" {
             return Ok(Trial::Reseed);
+        }
+        if s == "designed" {
+            return Ok(Trial::Designed);
+        }
+        if let Some(list) = s.strip_prefix("mixture:") {
+            let ws: Option<Vec<MixtureWeights>> = list
+                .split(',')
+                .map(|w| {
+                    let (s, u) = w.split_once('/')?;
+                    MixtureWeights::new(s.trim().parse().ok()?, u.trim().parse().ok()?)
+                })
+                .collect();
+            return ws
+                .map(Trial::Mixture)
+                .ok_or_else(|| format!("trial {s:?}: expected mixture:S/U,S/U,... (weights in [0, 1], S + U <= 1)"));
         }
         if let Some(list) = s.strip_prefix("choose:") {
             let cs: Option<Vec<f64>> = list
@@ -137,6 +161,8 @@ impl Trial {
         match self {
             Trial::Reseed => "reseed".into(),
             Trial::Choose(_) => choose_label(strategy, f64::INFINITY),
+            Trial::Mixture(_) => "adaptive mix".into(),
+            Trial::Designed => "designed".into(),
             Trial::Schedule(levels) => format!("{} {}", row_name(strategy), choose::label(levels)),
         }
     }
@@ -154,6 +180,11 @@ fn row_name(strategy: Strategy) -> &'static str {
 /// The rows' strategy name of trial `choose` with constant `c`.
 fn choose_label(strategy: Strategy, c: f64) -> String {
     format!("{} choose c={c}", row_name(strategy))
+}
+
+/// The rows' strategy name of trial `mixture` with weights `w`.
+fn mixture_label(w: MixtureWeights) -> String {
+    format!("adaptive mix s={} u={}", w.specular, w.uniform)
 }
 
 /// The `schedule:` trial plans its schedule as given, without `choose`'s padding level (its
@@ -270,6 +301,39 @@ pub fn run_rows(
                         let values = plan.measure(truth.as_ref());
                         let levels = assess_levels(&plan, &plan.levels, &values, spec, &mut scorer, &truth_env)?;
                         out.push((trial.label(strategy), levels, None));
+                    }
+                    out
+                }
+                Trial::Designed => {
+                    let (plan, _) = photo_plan
+                        .as_ref()
+                        .ok_or_else(|| PlanError::Invalid("no photo plan".into()))?;
+                    let n = uniform.first().copied().unwrap_or(0);
+                    let (pairs, seconds) = super::peer::design(instrument, n)?;
+                    let designed = designed::Designed::new(plan, &pairs, seconds)
+                        .ok_or_else(|| PlanError::Invalid("a designed direction is below the horizon".into()))?;
+                    let values: Vec<_> = designed.pairs().iter().map(|&(wi, wo)| truth.eval(wi, wo)).collect();
+                    let summaries = designed.levels();
+                    let levels = assess_levels(&designed, &summaries, &values, spec, &mut scorer, &truth_env)?;
+                    vec![(trial.label(Strategy::Auto), levels, None)]
+                }
+                Trial::Mixture(weights) => {
+                    let (_, config) = photo_plan
+                        .as_ref()
+                        .ok_or_else(|| PlanError::Invalid("no photo plan".into()))?;
+                    let mut out = Vec::new();
+                    for &w in weights {
+                        let plan = Planner::new(*instrument, estimate.clone())?
+                            .with_mixture_weights(w)
+                            .plan(config)?;
+                        // The weights change nothing where the estimate plans the uniform grid.
+                        let levels = if plan.warp == Strategy::Mixture {
+                            let values = plan.measure(truth.as_ref());
+                            assess_levels(&plan, &plan.levels, &values, spec, &mut scorer, &truth_env)?
+                        } else {
+                            per[0].clone()
+                        };
+                        out.push((mixture_label(w), levels, None));
                     }
                     out
                 }
@@ -501,6 +565,10 @@ pub fn summary(rows: &[LoopRow], title: &str, regenerate: &str) -> String {
     {
         let title = if strategy == "reseed" {
             "re-seeded from level 1's fit (lab trial)".to_string()
+        } else if strategy == "designed" {
+            "level 1 the peer's design, levels 2.. the photo plan's (lab trial)".to_string()
+        } else if strategy.contains(" mix ") {
+            format!("{strategy} (lab trial: the mixture warp's specular and uniform weights)")
         } else if strategy.contains("choose") {
             format!("{strategy} (lab trial: the measurements choose elevations or outgoing grid per level)")
         } else {
@@ -820,6 +888,7 @@ mod tests {
     #[test]
     fn trials_parse_and_refuse_schedules_that_do_not_nest() {
         assert_eq!(Trial::parse("reseed"), Ok(Trial::Reseed));
+        assert_eq!(Trial::parse("designed"), Ok(Trial::Designed));
         assert_eq!(
             Trial::parse("schedule:8x2,8x4,15x4"),
             Ok(Trial::Schedule(vec![(8, 2), (8, 4), (15, 4)]))
@@ -833,7 +902,14 @@ mod tests {
             Ok(Trial::Choose(vec![0.5, 1.0, f64::INFINITY]))
         );
         assert_eq!(choose_label(Strategy::Auto, 2.0), "adaptive choose c=2");
+        let w = MixtureWeights::new(0.2, 0.7).unwrap();
+        assert_eq!(Trial::parse("mixture:0.2/0.7"), Ok(Trial::Mixture(vec![w])));
+        assert_eq!(mixture_label(w), "adaptive mix s=0.2 u=0.7");
         for bad in [
+            "mixture:",
+            "mixture:0.5",
+            "mixture:0.6/0.6",
+            "mixture:-0.1/0.5",
             "choose:",
             "choose:-1",
             "schedule:8x2,16x4",

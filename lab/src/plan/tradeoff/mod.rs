@@ -33,6 +33,7 @@ use std::time::Instant;
 
 pub mod choose;
 pub mod closed_loop;
+pub mod designed;
 pub mod liu;
 mod markdown;
 mod peer;

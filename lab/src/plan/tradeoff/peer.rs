@@ -56,7 +56,7 @@ impl Peer {
             .collect();
         counts.extend(uniform.levels.iter().map(|l| (l.level, l.cumulative_directions)));
         let candidates = select::reachable_bins(&basis, &kin);
-        let tag = format!("k={} ridge={RIDGE} instrument={instrument:?}", basis.k());
+        let tag = selection_tag(&basis, instrument);
         let mut sets = Vec::new();
         for (level, n) in counts {
             let t0 = Instant::now();
@@ -136,6 +136,23 @@ impl Peer {
         }
         Ok(rows)
     }
+}
+
+/// The peer's design of `n` directions (the `nielsen2015` rows' set at that count) and the
+/// instrument seconds of measuring it from the rest pose.
+pub fn design(instrument: &InstrumentConfig<f64>, n: usize) -> Result<(Vec<(DVec3, DVec3)>, f64), PlanError> {
+    let basis = nielsen::training_basis().map_err(PlanError::Invalid)?;
+    let kin = Kinematics::new(*instrument).map_err(|e| PlanError::Invalid(format!("instrument: {e:?}")))?;
+    let candidates = select::reachable_bins(&basis, &kin);
+    let bins = cached_selection(&basis, &candidates, n, &selection_tag(&basis, instrument))?;
+    let design = Design::new(&basis, bins, RIDGE).map_err(PlanError::Invalid)?;
+    let seconds = timed(&kin, &design.pairs)?;
+    Ok((design.pairs, seconds))
+}
+
+/// What a cached selection was made for (a selection made for anything else is made again).
+fn selection_tag(basis: &Basis, instrument: &InstrumentConfig<f64>) -> String {
+    format!("k={} ridge={RIDGE} instrument={instrument:?}", basis.k())
 }
 
 /// The selection for `n` from the cache (`nielsen::cache_dir`), else computed and cached.

@@ -1,0 +1,173 @@
+//! Lab trial `designed` of `gonio-lab closed-loop` (issue 28: the peer's idea as the first level):
+//! level 1 measures the peer's condition-number design (`peer::design`, the same directions
+//! `nielsen2015` measures at that count) instead of the photo plan's level 1; from level 2 on, the
+//! photo plan's later levels are measured on top. Every designed direction is kept: the prior is
+//! fitted to all of them at every level, each filed under the plan's slice nearest its incoming
+//! elevation. The photo plan's own level-1 nodes are never measured, so its later levels read them
+//! as unmeasured nodes (the grid's nearest measured neighbour) and the cumulative count stays the
+//! uniform grid's. Level 1 is the fitted prior alone (no grid: its nodes are not the plan's).
+
+use glam::DVec3;
+use gonio::brdf::grid::NodeLayout;
+use gonio::plan::{LevelSummary, Plan};
+use gonio::reconstruct::{LevelNodes, Levels};
+
+/// The photo plan with its level 1 replaced by designed directions.
+pub struct Designed<'a> {
+    plan: &'a Plan,
+    /// (slice, wi, wo) of each designed direction, in measurement order.
+    design: Vec<(usize, DVec3, DVec3)>,
+    /// Instrument seconds of measuring the design from the rest pose.
+    design_seconds: f64,
+    /// Directions of the plan's own level 1 (never measured).
+    skipped: usize,
+}
+
+impl<'a> Designed<'a> {
+    /// None unless the plan has a level and every designed direction lies above the horizon.
+    pub fn new(plan: &'a Plan, pairs: &[(DVec3, DVec3)], design_seconds: f64) -> Option<Self> {
+        let skipped = plan.levels.first()?.cumulative_directions;
+        let nearest = |wi: DVec3| {
+            let theta = wi.z.clamp(-1.0, 1.0).acos();
+            (0..plan.thetas.len()).min_by(|&a, &b| {
+                (plan.thetas[a] - theta)
+                    .abs()
+                    .total_cmp(&(plan.thetas[b] - theta).abs())
+            })
+        };
+        let design = pairs
+            .iter()
+            .map(|&(wi, wo)| {
+                if wi.z > 0.0 && wo.z > 0.0 {
+                    nearest(wi).map(|k| (k, wi, wo))
+                } else {
+                    None
+                }
+            })
+            .collect::<Option<Vec<_>>>()?;
+        Some(Self {
+            plan,
+            design,
+            design_seconds,
+            skipped,
+        })
+    }
+
+    /// The per-level summaries: the design as level 1, then the plan's later levels after it
+    /// (times: the design's, plus the plan's later levels as planned from the rest pose).
+    pub fn levels(&self) -> Vec<LevelSummary> {
+        let Some(p1) = self.plan.levels.first() else {
+            return Vec::new();
+        };
+        let d = self.design.len();
+        let mut first = p1.clone();
+        first.cumulative_directions = d;
+        first.first = 0;
+        first.count = d;
+        first.cumulative_seconds = self.design_seconds;
+        first.cumulative_raster_seconds = self.design_seconds;
+        let mut out = vec![first];
+        for l in self.plan.levels.iter().skip(1) {
+            let mut s = l.clone();
+            s.cumulative_directions = d + l.cumulative_directions - self.skipped;
+            s.first = d + l.first - self.skipped;
+            s.cumulative_seconds = self.design_seconds + l.cumulative_seconds - p1.cumulative_seconds;
+            s.cumulative_raster_seconds =
+                self.design_seconds + l.cumulative_raster_seconds - p1.cumulative_raster_seconds;
+            out.push(s);
+        }
+        out
+    }
+
+    /// Every direction in measurement order: the design, then the plan's later levels.
+    pub fn pairs(&self) -> Vec<(DVec3, DVec3)> {
+        let design = self.design.iter().map(|&(_, wi, wo)| (wi, wo));
+        let next = self.plan.directions[self.skipped..].iter().map(|d| (d.wi, d.wo));
+        design.chain(next).collect()
+    }
+}
+
+impl Levels for Designed<'_> {
+    fn level_nodes(&self, level: usize) -> Option<LevelNodes<'_>> {
+        let nodes = self.plan.level_nodes(level)?;
+        let d = self.design.len();
+        if level <= 1 {
+            // The fitted prior alone: a two-ring far-ring level keeps no residual grid.
+            return Some(LevelNodes {
+                layout: NodeLayout::NestedFarRing,
+                node_measurement: vec![None; nodes.node_measurement.len()],
+                measured: self.design.clone(),
+                ..nodes
+            });
+        }
+        let mut measured = self.design.clone();
+        measured.extend_from_slice(nodes.measured.get(self.skipped..)?);
+        let node_measurement = nodes
+            .node_measurement
+            .iter()
+            .map(|m| m.and_then(|i| i.checked_sub(self.skipped)).map(|i| d + i))
+            .collect();
+        Some(LevelNodes {
+            node_measurement,
+            measured,
+            ..nodes
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gonio::brdf::{parse_material, Material};
+    use gonio::plan::{ggx_estimate, square_grids, PlanConfig, Planner, Strategy};
+    use gonio::reconstruct::reconstruct;
+
+    /// The design is level 1 and stays in every later level; the plan's level-1 nodes are read as
+    /// unmeasured; counts never exceed the plan's; every level reconstructs finitely.
+    #[test]
+    fn the_design_replaces_level_one_and_stays_measured() {
+        let instrument = gonio::instrument::default_instrument();
+        let config = PlanConfig {
+            strategy: Strategy::Auto,
+            grids: square_grids(3),
+            ..PlanConfig::default()
+        };
+        let plan = Planner::new(instrument, ggx_estimate(0.02, 0.5))
+            .unwrap()
+            .plan(&config)
+            .unwrap();
+        let c1 = plan.levels[0].cumulative_directions;
+        let from = |t: f64, p: f64| DVec3::new(t.sin() * p.cos(), t.sin() * p.sin(), t.cos());
+        let pairs: Vec<_> = (0..c1)
+            .map(|i| (from(0.1 + 0.05 * i as f64, 0.0), from(0.3, 0.2 * i as f64)))
+            .collect();
+        let designed = Designed::new(&plan, &pairs, 10.0).unwrap();
+        let levels = designed.levels();
+        let all = designed.pairs();
+        assert_eq!(levels.len(), 3);
+        assert_eq!(levels[0].cumulative_directions, c1);
+        assert_eq!(levels.last().unwrap().cumulative_directions, all.len());
+        for (a, p) in levels.iter().zip(&plan.levels) {
+            assert!(a.cumulative_directions <= p.cumulative_directions);
+        }
+        assert_eq!(&all[..c1], &pairs[..]);
+        let truth = parse_material("ggx:alpha=0.05,diffuse=0.3,specular=1").unwrap();
+        let values: Vec<_> = all.iter().map(|&(wi, wo)| truth.eval(wi, wo)).collect();
+        for l in &levels {
+            let nodes = designed.level_nodes(l.level).unwrap();
+            assert_eq!(nodes.measured.len(), l.cumulative_directions);
+            assert_eq!(
+                &nodes.measured[..c1].iter().map(|m| (m.1, m.2)).collect::<Vec<_>>(),
+                &pairs
+            );
+            for &m in nodes.node_measurement.iter().flatten() {
+                assert!(m >= c1, "a node reads a designed direction");
+                assert!(m < l.cumulative_directions);
+            }
+            let rec = reconstruct(&designed, l.level, &values[..l.cumulative_directions]).unwrap();
+            assert!(rec.eval(pairs[0].0, pairs[0].1).is_finite());
+        }
+        let below = [(DVec3::new(0.0, 0.0, -1.0), DVec3::Z)];
+        assert!(Designed::new(&plan, &below, 1.0).is_none());
+    }
+}
