@@ -108,6 +108,9 @@ pub enum Trial {
     /// Level 1 the peer's condition-number design at the uniform grid's level-1 count, levels 2..
     /// the photo plan's (`designed`), rows `designed`.
     Designed,
+    /// Other outgoing grids per level, N x M (8 elevations), for the product's plan and the
+    /// uniform grid (`grids`): rows `adaptive grids` and `uniform grids`.
+    Grids(Vec<(usize, usize)>),
 }
 
 impl Trial {
@@ -118,6 +121,18 @@ impl Trial {
         }
         if s == "designed" {
             return Ok(Trial::Designed);
+        }
+        if let Some(list) = s.strip_prefix("grids:") {
+            let grids = list
+                .split(',')
+                .map(|l| {
+                    let (n, m) = l.split_once('x')?;
+                    Some((n.trim().parse().ok()?, m.trim().parse().ok()?))
+                })
+                .collect::<Option<Vec<(usize, usize)>>>()
+                .ok_or_else(|| format!("trial {s:?}: a level is not NxM"))?;
+            gonio::plan::check_levels(&grids, &[], PlanConfig::default().k).map_err(|e| e.to_string())?;
+            return Ok(Trial::Grids(grids));
         }
         if let Some(list) = s.strip_prefix("mixture:") {
             let ws: Option<Vec<MixtureWeights>> = list
@@ -163,6 +178,7 @@ impl Trial {
             Trial::Choose(_) => choose_label(strategy, f64::INFINITY),
             Trial::Mixture(_) => "adaptive mix".into(),
             Trial::Designed => "designed".into(),
+            Trial::Grids(_) => format!("{} grids", row_name(strategy)),
             Trial::Schedule(levels) => format!("{} {}", row_name(strategy), choose::label(levels)),
         }
     }
@@ -298,6 +314,21 @@ pub fn run_rows(
                     for strategy in [Strategy::Auto, Strategy::Uniform] {
                         let plan = Planner::new(*instrument, estimate.clone())?
                             .plan(&choose::config(strategy, schedule, UNPADDED))?;
+                        let values = plan.measure(truth.as_ref());
+                        let levels = assess_levels(&plan, &plan.levels, &values, spec, &mut scorer, &truth_env)?;
+                        out.push((trial.label(strategy), levels, None));
+                    }
+                    out
+                }
+                Trial::Grids(grids) => {
+                    let mut out = Vec::new();
+                    for strategy in [Strategy::Auto, Strategy::Uniform] {
+                        let config = PlanConfig {
+                            strategy,
+                            grids: grids.clone(),
+                            ..PlanConfig::default()
+                        };
+                        let plan = Planner::new(*instrument, estimate.clone())?.plan(&config)?;
                         let values = plan.measure(truth.as_ref());
                         let levels = assess_levels(&plan, &plan.levels, &values, spec, &mut scorer, &truth_env)?;
                         out.push((trial.label(strategy), levels, None));
@@ -565,6 +596,8 @@ pub fn summary(rows: &[LoopRow], title: &str, regenerate: &str) -> String {
     {
         let title = if strategy == "reseed" {
             "re-seeded from level 1's fit (lab trial)".to_string()
+        } else if strategy.ends_with(" grids") {
+            format!("{strategy} (lab trial: other outgoing grids per level, compared level by level with the uniform grid's N x N levels, so not at equal directions)")
         } else if strategy == "designed" {
             "level 1 the peer's design, levels 2.. the photo plan's (lab trial)".to_string()
         } else if strategy.contains(" mix ") {
@@ -890,6 +923,11 @@ mod tests {
         assert_eq!(Trial::parse("reseed"), Ok(Trial::Reseed));
         assert_eq!(Trial::parse("designed"), Ok(Trial::Designed));
         assert_eq!(
+            Trial::parse("grids:2x2,4x2,4x4"),
+            Ok(Trial::Grids(vec![(2, 2), (4, 2), (4, 4)]))
+        );
+        assert_eq!(Trial::Grids(vec![(2, 2)]).label(Strategy::Uniform), "uniform grids");
+        assert_eq!(
             Trial::parse("schedule:8x2,8x4,15x4"),
             Ok(Trial::Schedule(vec![(8, 2), (8, 4), (15, 4)]))
         );
@@ -908,6 +946,8 @@ mod tests {
         for bad in [
             "mixture:",
             "mixture:0.5",
+            "grids:2x2,3x2",
+            "grids:2x2,4x",
             "mixture:0.6/0.6",
             "mixture:-0.1/0.5",
             "choose:",
