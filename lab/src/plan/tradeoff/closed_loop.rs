@@ -14,16 +14,20 @@ use super::{
 use crate::plan::report::{csv, write};
 use gonio::brdf::parse_material;
 use gonio::brdf::warp::MixtureWeights;
+use gonio::brdf::Material;
 use gonio::encoder::infer::Encoder;
 use gonio::encoder::ModelKind;
 use gonio::plan::closed_loop::{self, Assessor, LevelAssessment};
 use gonio::plan::predict::{score, Scorer};
-use gonio::plan::{square_grids, LevelSummary, PlanConfig, PlanError, Planner, Strategy};
+use gonio::plan::{square_grids, Estimate, LevelSummary, Plan, PlanConfig, PlanError, Planner, Strategy};
 use gonio::reconstruct::Levels;
+use gonio::render::Image;
 use gonio::render::Scene;
 use gonio_shared::instrument::InstrumentConfig;
-use std::fmt::Write as _;
 use std::path::Path;
+
+mod summary;
+pub use summary::{quantile, replay, summary, with_current_constants};
 
 /// Material sets of the closed-loop report.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -296,84 +300,21 @@ pub fn run_rows(
                 .join(" ")
         };
         let mut lines = vec![format!("adaptive {}, uniform {}", line(&per[0]), line(&per[1]))];
+        let photo_plan = photo_plan.ok_or_else(|| PlanError::Invalid("no photo plan".into()))?;
         for trial in trials {
-            let runs: Vec<Run> = match trial {
-                Trial::Reseed => {
-                    let (first, config) = photo_plan
-                        .as_ref()
-                        .ok_or_else(|| PlanError::Invalid("no photo plan".into()))?;
-                    let levels = reseeded_levels(first, config, instrument, &uniform, spec, &mut scorer, &truth_env)?;
-                    vec![(
-                        trial.label(Strategy::Auto),
-                        levels.unwrap_or_else(|| per[0].clone()),
-                        None,
-                    )]
-                }
-                Trial::Schedule(schedule) => {
-                    let mut out = Vec::new();
-                    for strategy in [Strategy::Auto, Strategy::Uniform] {
-                        let plan = Planner::new(*instrument, estimate.clone())?
-                            .plan(&choose::config(strategy, schedule, UNPADDED))?;
-                        let values = plan.measure(truth.as_ref());
-                        let levels = assess_levels(&plan, &plan.levels, &values, spec, &mut scorer, &truth_env)?;
-                        out.push((trial.label(strategy), levels, None));
-                    }
-                    out
-                }
-                Trial::Grids(grids) => {
-                    let mut out = Vec::new();
-                    for strategy in [Strategy::Auto, Strategy::Uniform] {
-                        let config = PlanConfig {
-                            strategy,
-                            grids: grids.clone(),
-                            ..PlanConfig::default()
-                        };
-                        let plan = Planner::new(*instrument, estimate.clone())?.plan(&config)?;
-                        let values = plan.measure(truth.as_ref());
-                        let levels = assess_levels(&plan, &plan.levels, &values, spec, &mut scorer, &truth_env)?;
-                        out.push((trial.label(strategy), levels, None));
-                    }
-                    out
-                }
-                Trial::Designed => {
-                    let (plan, _) = photo_plan
-                        .as_ref()
-                        .ok_or_else(|| PlanError::Invalid("no photo plan".into()))?;
-                    let n = uniform.first().copied().unwrap_or(0);
-                    let (pairs, seconds) = super::peer::design(instrument, n)?;
-                    let designed = designed::Designed::new(plan, &pairs, seconds)
-                        .ok_or_else(|| PlanError::Invalid("a designed direction is below the horizon".into()))?;
-                    let values: Vec<_> = designed.pairs().iter().map(|&(wi, wo)| truth.eval(wi, wo)).collect();
-                    let summaries = designed.levels();
-                    let levels = assess_levels(&designed, &summaries, &values, spec, &mut scorer, &truth_env)?;
-                    vec![(trial.label(Strategy::Auto), levels, None)]
-                }
-                Trial::Mixture(weights) => {
-                    let (_, config) = photo_plan
-                        .as_ref()
-                        .ok_or_else(|| PlanError::Invalid("no photo plan".into()))?;
-                    let mut out = Vec::new();
-                    for &w in weights {
-                        let plan = Planner::new(*instrument, estimate.clone())?
-                            .with_mixture_weights(w)
-                            .plan(config)?;
-                        // The weights change nothing where the estimate plans the uniform grid.
-                        let levels = if plan.warp == Strategy::Mixture {
-                            let values = plan.measure(truth.as_ref());
-                            assess_levels(&plan, &plan.levels, &values, spec, &mut scorer, &truth_env)?
-                        } else {
-                            per[0].clone()
-                        };
-                        out.push((mixture_label(w), levels, None));
-                    }
-                    out
-                }
-                Trial::Choose(cs) => {
-                    let planner = Planner::new(*instrument, estimate.clone())?;
-                    let truth = (truth.as_ref(), spec.as_str(), &truth_env);
-                    choose_runs(&planner, truth, cs, max_level, &uniform, &mut scorer)?
-                }
+            let mut ctx = MaterialRun {
+                instrument,
+                estimate: &estimate,
+                truth: truth.as_ref(),
+                spec,
+                truth_env: &truth_env,
+                photo_plan: (&photo_plan.0, &photo_plan.1),
+                photo_levels: &per[0],
+                uniform: &uniform,
+                max_level,
+                scorer: &mut scorer,
             };
+            let runs = trial_runs(trial, &mut ctx)?;
             for (label, levels, choice) in runs {
                 lines.push(format!("{label} {}", line(&levels)));
                 let mut new = rows_of(spec, &label, &levels, &uniform);
@@ -391,6 +332,96 @@ pub fn run_rows(
         progress(&format!("{spec}: point/env FLIP {}", lines.join("; ")));
     }
     Ok(rows)
+}
+
+/// One material's run, as every trial reads it.
+struct MaterialRun<'a> {
+    instrument: &'a InstrumentConfig<f64>,
+    estimate: &'a Estimate,
+    truth: &'a dyn Material,
+    spec: &'a str,
+    truth_env: &'a Image,
+    /// The product's plan (`auto`) and its config, and its assessed levels.
+    photo_plan: (&'a Plan, &'a PlanConfig),
+    photo_levels: &'a [Scored],
+    /// The uniform grid's cumulative directions per level.
+    uniform: &'a [usize],
+    max_level: usize,
+    scorer: &'a mut Scorer,
+}
+
+impl MaterialRun<'_> {
+    /// The levels of `plan` measured on the truth and assessed.
+    fn assess_plan(&mut self, plan: &Plan) -> Result<Vec<Scored>, PlanError> {
+        let values = plan.measure(self.truth);
+        assess_levels(plan, &plan.levels, &values, self.spec, self.scorer, self.truth_env)
+    }
+
+    /// The product's plan and the uniform grid, each planned with `config(strategy)`.
+    fn both_strategies(
+        &mut self,
+        trial: &Trial,
+        config: impl Fn(Strategy) -> PlanConfig,
+    ) -> Result<Vec<Run>, PlanError> {
+        let mut out = Vec::new();
+        for strategy in [Strategy::Auto, Strategy::Uniform] {
+            let plan = Planner::new(*self.instrument, self.estimate.clone())?.plan(&config(strategy))?;
+            out.push((trial.label(strategy), self.assess_plan(&plan)?, None));
+        }
+        Ok(out)
+    }
+}
+
+/// A trial's runs on one material.
+fn trial_runs(trial: &Trial, m: &mut MaterialRun) -> Result<Vec<Run>, PlanError> {
+    Ok(match trial {
+        Trial::Reseed => {
+            let (first, config) = m.photo_plan;
+            let levels = reseeded_levels(first, config, m.instrument, m.uniform, m.spec, m.scorer, m.truth_env)?;
+            vec![(
+                trial.label(Strategy::Auto),
+                levels.unwrap_or_else(|| m.photo_levels.to_vec()),
+                None,
+            )]
+        }
+        Trial::Schedule(schedule) => m.both_strategies(trial, |s| choose::config(s, schedule, UNPADDED))?,
+        Trial::Grids(grids) => m.both_strategies(trial, |strategy| PlanConfig {
+            strategy,
+            grids: grids.clone(),
+            ..PlanConfig::default()
+        })?,
+        Trial::Designed => {
+            let n = m.uniform.first().copied().unwrap_or(0);
+            let (pairs, seconds) = super::peer::design(m.instrument, n)?;
+            let designed = designed::Designed::new(m.photo_plan.0, &pairs, seconds)
+                .ok_or_else(|| PlanError::Invalid("a designed direction is below the horizon".into()))?;
+            let values: Vec<_> = designed.pairs().iter().map(|&(wi, wo)| m.truth.eval(wi, wo)).collect();
+            let summaries = designed.levels();
+            let levels = assess_levels(&designed, &summaries, &values, m.spec, m.scorer, m.truth_env)?;
+            vec![(trial.label(Strategy::Auto), levels, None)]
+        }
+        Trial::Mixture(weights) => {
+            let mut out = Vec::new();
+            for &w in weights {
+                let plan = Planner::new(*m.instrument, m.estimate.clone())?
+                    .with_mixture_weights(w)
+                    .plan(m.photo_plan.1)?;
+                // The weights change nothing where the estimate plans the uniform grid.
+                let levels = if plan.warp == Strategy::Mixture {
+                    m.assess_plan(&plan)?
+                } else {
+                    m.photo_levels.to_vec()
+                };
+                out.push((mixture_label(w), levels, None));
+            }
+            out
+        }
+        Trial::Choose(cs) => {
+            let planner = Planner::new(*m.instrument, m.estimate.clone())?;
+            let truth = (m.truth, m.spec, m.truth_env);
+            choose_runs(&planner, truth, cs, m.max_level, m.uniform, m.scorer)?
+        }
+    })
 }
 
 /// Trial `choose`: per strategy and constant c, the chosen schedule's levels assessed (a schedule
@@ -476,371 +507,11 @@ fn assess_levels(
     Ok(out)
 }
 
-/// The `q` quantile (0..1) of `v` (nearest rank); NaN for none.
-pub fn quantile(mut v: Vec<f64>, q: f64) -> f64 {
-    v.retain(|x| x.is_finite());
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    let i = ((v.len() as f64 * q).ceil() as usize).clamp(1, v.len()) - 1;
-    v[i]
-}
-
-fn geomean(v: &[f64]) -> f64 {
-    let v: Vec<f64> = v.iter().copied().filter(|x| x.is_finite() && *x > 0.0).collect();
-    (v.iter().map(|x| x.ln()).sum::<f64>() / v.len().max(1) as f64).exp()
-}
-
-/// Replay a target on one material's adaptive levels: (stop level's true FLIP, its minutes, the
-/// oracle's minutes: the first level whose true FLIP meets the target, if any).
-pub fn replay(levels: &[&LoopRow], target: f64) -> Option<(f64, f64, Option<f64>)> {
-    let last = levels.last()?;
-    let stop = levels
-        .iter()
-        .find(|r| r.est_flip.is_some_and(|e| e <= target))
-        .unwrap_or(last);
-    let oracle = levels.iter().find(|r| r.true_flip.is_some_and(|t| t <= target));
-    Some((stop.true_flip?, stop.minutes, oracle.map(|r| r.minutes)))
-}
-
-/// Rows with their estimates re-derived from the recorded change FLIP with the product's current
-/// constants (so a csv made before a constant changed is summarised as the product now estimates).
-pub fn with_current_constants(mut rows: Vec<LoopRow>) -> Vec<LoopRow> {
-    for r in &mut rows {
-        if let Some(d) = r.change_flip {
-            r.est_flip = Some(d * closed_loop::FLIP_RATIO);
-            r.est_lo = Some(d * closed_loop::FLIP_RATIO_LO);
-            r.est_hi = Some(d * closed_loop::FLIP_RATIO_HI);
-        }
-    }
-    rows
-}
-
 /// Read the rows of a `closed-loop.csv`.
 pub fn read_rows(path: &Path) -> Result<Vec<LoopRow>, PlanError> {
     let err = |e: &dyn std::fmt::Display| PlanError::Invalid(format!("{}: {e}", path.display()));
     let mut reader = ::csv::Reader::from_path(path).map_err(|e| err(&e))?;
     reader.deserialize().map(|r| r.map_err(|e| err(&e))).collect()
-}
-
-/// The report's markdown from its rows.
-pub fn summary(rows: &[LoopRow], title: &str, regenerate: &str) -> String {
-    let rows = &with_current_constants(rows.to_vec());
-    let mut md = String::new();
-    let _ = writeln!(md, "# Closed loop: {title}\n\nRegenerate: `{regenerate}`\n");
-    let adaptive: Vec<&LoopRow> = rows.iter().filter(|r| r.strategy == "adaptive").collect();
-    let ratio: Vec<f64> = adaptive
-        .iter()
-        .filter_map(|r| Some(r.true_flip? / r.change_flip?.max(1e-9)))
-        .collect();
-    let _ = writeln!(
-        md,
-        "## Estimator\n\ntrue point FLIP / change FLIP over {} levels: median {:.3}, 5% {:.3}, 95% {:.3} \
-         (product constants: {} [{}, {}]).\n",
-        ratio.len(),
-        quantile(ratio.clone(), 0.5),
-        quantile(ratio.clone(), 0.05),
-        quantile(ratio, 0.95),
-        closed_loop::FLIP_RATIO,
-        closed_loop::FLIP_RATIO_LO,
-        closed_loop::FLIP_RATIO_HI
-    );
-    let inside = adaptive
-        .iter()
-        .filter_map(|r| Some(r.true_flip? >= r.est_lo? && r.true_flip? <= r.est_hi?))
-        .collect::<Vec<_>>();
-    let coverage: Vec<f64> = adaptive.iter().filter_map(|r| r.coverage).collect();
-    let _ = writeln!(
-        md,
-        "Calibration: true FLIP inside the estimated 90% FLIP interval at {} of {} levels ({:.0}%); \
-         per-direction 90% predictive interval (fit directions x RGB) holds {:.1}% of true values on average \
-         (levels 2+, min {:.1}%, max {:.1}%).\n",
-        inside.iter().filter(|b| **b).count(),
-        inside.len(),
-        100.0 * inside.iter().filter(|b| **b).count() as f64 / inside.len().max(1) as f64,
-        100.0 * coverage.iter().sum::<f64>() / coverage.len().max(1) as f64,
-        100.0 * quantile(coverage.clone(), 0.0),
-        100.0 * quantile(coverage, 1.0)
-    );
-    priors_chosen(&mut md, rows);
-    let mut materials: Vec<&str> = rows.iter().map(|r| r.material.as_str()).collect();
-    materials.dedup();
-    let _ = writeln!(md, "## Stop rules (replayed on the recorded estimates)\n");
-    let _ = writeln!(md, "| target FLIP | scans meeting it at the stop level | time / oracle (geomean, max) | scans whose target no level met |\n|---|---|---|---|");
-    for target in [0.02, 0.01] {
-        let (mut hit, mut n, mut ratios, mut unmet) = (0, 0, Vec::new(), 0);
-        for m in &materials {
-            let levels: Vec<&LoopRow> = adaptive.iter().copied().filter(|r| r.material == *m).collect();
-            if let Some((t, minutes, oracle)) = replay(&levels, target) {
-                n += 1;
-                hit += usize::from(t <= target);
-                match oracle {
-                    Some(o) => ratios.push(minutes / o),
-                    None => unmet += 1,
-                }
-            }
-        }
-        let _ = writeln!(
-            md,
-            "| {target} | {hit} of {n} | {:.2}, {:.2} | {unmet} |",
-            geomean(&ratios),
-            quantile(ratios.clone(), 1.0)
-        );
-    }
-    absolute_errors(&mut md, rows);
-    equal_directions(&mut md, rows, &materials, "adaptive", "closed loop");
-    for strategy in strategies(rows)
-        .into_iter()
-        .filter(|s| *s != "adaptive" && *s != "uniform")
-    {
-        let title = if strategy == "reseed" {
-            "re-seeded from level 1's fit (lab trial)".to_string()
-        } else if strategy.ends_with(" grids") {
-            format!("{strategy} (lab trial: other outgoing grids per level, compared level by level with the uniform grid's N x N levels, so not at equal directions)")
-        } else if strategy == "designed" {
-            "level 1 the peer's design, levels 2.. the photo plan's (lab trial)".to_string()
-        } else if strategy.contains(" mix ") {
-            format!("{strategy} (lab trial: the mixture warp's specular and uniform weights)")
-        } else if strategy.contains("choose") {
-            format!("{strategy} (lab trial: the measurements choose elevations or outgoing grid per level)")
-        } else {
-            format!("{strategy} (lab trial, incoming K x outgoing N per level)")
-        };
-        equal_directions(&mut md, rows, &materials, strategy, &title);
-    }
-    monotonicity(&mut md, rows, &materials);
-    within_goal_minutes(&mut md, rows, &materials);
-    per_level_table(&mut md, rows);
-    md
-}
-
-/// The rows' strategies in order of first appearance.
-fn strategies(rows: &[LoopRow]) -> Vec<&str> {
-    let mut out: Vec<&str> = Vec::new();
-    for r in rows {
-        if !out.contains(&r.strategy.as_str()) {
-            out.push(&r.strategy);
-        }
-    }
-    out
-}
-
-/// One error metric of a row.
-type Metric = fn(&LoopRow) -> Option<f64>;
-
-/// The three error metrics of a row, by name.
-const METRICS: [(&str, Metric); 3] = [
-    ("point FLIP", |r| r.true_flip),
-    ("env FLIP", |r| r.env_flip),
-    ("brdf_log_err", |r| r.brdf_log_err),
-];
-
-fn fmt_opt(v: Option<f64>) -> String {
-    v.map_or("-".into(), |v| format!("{v:.4}"))
-}
-
-/// The row of `material`, `strategy`, `level`.
-fn row_of<'a>(rows: &'a [LoopRow], material: &str, strategy: &str, level: usize) -> Option<&'a LoopRow> {
-    rows.iter()
-        .find(|r| r.material == material && r.strategy == strategy && r.level == level)
-}
-
-/// Per strategy: at how many levels the reconstruction chose each prior, and per level how many
-/// materials chose the PCA basis (rows from csvs that predate the column are left out).
-fn priors_chosen(md: &mut String, rows: &[LoopRow]) {
-    let max_level = rows.iter().map(|r| r.level).max().unwrap_or(0);
-    let mut lines = Vec::new();
-    for strategy in strategies(rows) {
-        let at = |level: usize| {
-            rows.iter()
-                .filter(move |r| r.strategy == strategy && (level == 0 || r.level == level))
-                .filter_map(|r| r.prior.as_deref())
-        };
-        let total = at(0).count();
-        if total == 0 {
-            continue;
-        }
-        let per_level: Vec<String> = (1..=max_level)
-            .map(|l| format!("{} of {}", at(l).filter(|p| *p == "pca").count(), at(l).count()))
-            .collect();
-        lines.push(format!(
-            "{strategy}: pca at {} of {total} levels (levels 1.. : {})",
-            at(0).filter(|p| *p == "pca").count(),
-            per_level.join(", ")
-        ));
-    }
-    if !lines.is_empty() {
-        let _ = writeln!(
-            md,
-            "Prior chosen per level (two lobes or the PCA basis): {}.\n",
-            lines.join("; ")
-        );
-    }
-}
-
-/// Per strategy and level: each metric's geometric mean over the materials (the figures the ratios
-/// below are made of, comparable across runs).
-fn absolute_errors(md: &mut String, rows: &[LoopRow]) {
-    let _ = writeln!(
-        md,
-        "\n## Errors (geometric mean over materials)\n\n| strategy | level | directions (max) | point FLIP | env FLIP | brdf_log_err |\n|---|---|---|---|---|---|"
-    );
-    let max_level = rows.iter().map(|r| r.level).max().unwrap_or(0);
-    for strategy in strategies(rows) {
-        for level in 1..=max_level {
-            let at: Vec<&LoopRow> = rows
-                .iter()
-                .filter(|r| r.strategy == strategy && r.level == level)
-                .collect();
-            let Some(directions) = at.iter().map(|r| r.directions).max() else {
-                continue;
-            };
-            let cells: Vec<String> = METRICS
-                .iter()
-                .map(|(_, metric)| {
-                    let v: Vec<f64> = at.iter().filter_map(|r| metric(r)).collect();
-                    // Five decimals: brdf_log_err is ~0.001.
-                    if v.is_empty() {
-                        "-".into()
-                    } else {
-                        format!("{:.5}", geomean(&v))
-                    }
-                })
-                .collect();
-            let _ = writeln!(md, "| {strategy} | {level} | {directions} | {} |", cells.join(" | "));
-        }
-    }
-}
-
-/// Per level and metric: geometric mean over materials of closed loop / uniform, and the worst material.
-fn equal_directions(md: &mut String, rows: &[LoopRow], materials: &[&str], strategy: &str, title: &str) {
-    let _ = writeln!(
-        md,
-        "\n## Equal directions: {title} / uniform (geometric mean over materials; worst material)\n\n\
-         Goal (issue 25): geometric mean <= 1.0 on every metric at every level, no material above 1.25.\n"
-    );
-    let _ = writeln!(
-        md,
-        "| level | point FLIP | worst | env FLIP | worst | brdf_log_err | worst | adaptive directions <= uniform |\n|---|---|---|---|---|---|---|---|"
-    );
-    let max_level = rows.iter().map(|r| r.level).max().unwrap_or(0);
-    for level in 1..=max_level {
-        let mut cells = Vec::new();
-        for (_, metric) in METRICS {
-            let ratios: Vec<f64> = materials
-                .iter()
-                .filter_map(|m| {
-                    let (a, u) = (row_of(rows, m, strategy, level)?, row_of(rows, m, "uniform", level)?);
-                    Some(metric(a)? / metric(u)?.max(1e-9))
-                })
-                .collect();
-            cells.push(format!("{:.3} | {:.3}", geomean(&ratios), quantile(ratios, 1.0)));
-        }
-        let equal = materials
-            .iter()
-            .all(|m| row_of(rows, m, strategy, level).is_none_or(|a| a.directions <= a.uniform_directions));
-        let _ = writeln!(md, "| {level} | {} | {equal} |", cells.join(" | "));
-    }
-}
-
-/// Per strategy and metric: the largest level-to-level error ratio over materials, and how many
-/// steps exceed the goal's 1.05.
-fn monotonicity(md: &mut String, rows: &[LoopRow], materials: &[&str]) {
-    let _ = writeln!(
-        md,
-        "\n## Monotonicity: error of level L / level L-1 (goal <= 1.05 on every material)\n\n\
-         | strategy | metric | largest ratio | where | steps above 1.05 |\n|---|---|---|---|---|"
-    );
-    for strategy in strategies(rows) {
-        for (name, metric) in METRICS {
-            let (mut worst, mut at, mut above, mut steps) = (0.0f64, String::new(), 0, 0);
-            for m in materials {
-                let levels: Vec<&LoopRow> = rows
-                    .iter()
-                    .filter(|r| r.material == *m && r.strategy == strategy)
-                    .collect();
-                for w in levels.windows(2) {
-                    if let (Some(a), Some(b)) = (metric(w[0]), metric(w[1])) {
-                        let r = b / a.max(1e-12);
-                        steps += 1;
-                        above += usize::from(r > 1.05);
-                        if r > worst {
-                            (worst, at) = (r, format!("{} level {}", short_name(m), w[1].level));
-                        }
-                    }
-                }
-            }
-            let _ = writeln!(md, "| {strategy} | {name} | {worst:.3} | {at} | {above} of {steps} |");
-        }
-    }
-}
-
-/// A material spec without its directory (`rgl:../x/y.bsdf` -> `y.bsdf`).
-fn short_name(spec: &str) -> &str {
-    spec.rsplit(['/', ':']).next().unwrap_or(spec)
-}
-
-/// Per material: the deepest level within `GOAL_MINUTES` of instrument time, both strategies.
-fn within_goal_minutes(md: &mut String, rows: &[LoopRow], materials: &[&str]) {
-    let _ = writeln!(
-        md,
-        "\n## Within {GOAL_MINUTES} min of instrument time (deepest level that fits)\n\n\
-         Goal on the real materials (issue 25): point FLIP <= 0.01 and env FLIP <= 0.02.\n\n\
-         | material | strategy | level | directions | min | point FLIP | env FLIP | brdf_log_err |\n|---|---|---|---|---|---|---|---|"
-    );
-    for m in materials {
-        for strategy in strategies(rows) {
-            let best = rows
-                .iter()
-                .filter(|r| r.material == *m && r.strategy == strategy && r.minutes <= GOAL_MINUTES)
-                .max_by_key(|r| r.level);
-            if let Some(r) = best {
-                let _ = writeln!(
-                    md,
-                    "| {} | {strategy} | {} | {} | {:.1} | {} | {} | {} |",
-                    short_name(m),
-                    r.level,
-                    r.directions,
-                    r.minutes,
-                    fmt_opt(r.true_flip),
-                    fmt_opt(r.env_flip),
-                    fmt_opt(r.brdf_log_err)
-                );
-            }
-        }
-    }
-}
-
-/// Every material, strategy and level.
-fn per_level_table(md: &mut String, rows: &[LoopRow]) {
-    let _ = writeln!(
-        md,
-        "\n## Per material and level\n\n\
-         | material | strategy | level | directions | min | point FLIP | env FLIP | brdf_log_err | estimated FLIP [90%] |\n|---|---|---|---|---|---|---|---|---|"
-    );
-    for r in rows {
-        let est = match (r.est_flip, r.est_lo, r.est_hi) {
-            (Some(e), Some(lo), Some(hi)) => format!("{e:.4} [{lo:.4}, {hi:.4}]"),
-            _ => "-".into(),
-        };
-        let strategy = match (&r.schedule, r.e_in, r.e_out) {
-            (Some(s), Some(i), Some(o)) => format!("{} ({s}; e_in {i:.4}, e_out {o:.4})", r.strategy),
-            (Some(s), _, _) => format!("{} ({s})", r.strategy),
-            _ => r.strategy.clone(),
-        };
-        let _ = writeln!(
-            md,
-            "| {} | {strategy} | {} | {} | {:.1} | {} | {} | {} | {est} |",
-            short_name(&r.material),
-            r.level,
-            r.directions,
-            r.minutes,
-            fmt_opt(r.true_flip),
-            fmt_opt(r.env_flip),
-            fmt_opt(r.brdf_log_err)
-        );
-    }
 }
 
 /// Where the report's rows come from.
