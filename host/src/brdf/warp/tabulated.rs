@@ -622,6 +622,47 @@ mod tests {
         assert!(fm > 0.12 && fs < 0.05, "mixture {fm}, vndf {fs}");
     }
 
+    /// Weights outside [0, 1] or summing above 1 are refused; the product's are `new`'s, and a
+    /// larger equal-angle share sends more samples away from the peak.
+    #[test]
+    fn mixture_weights_are_checked_and_move_the_samples() {
+        for (s, u) in [(0.6, 0.6), (-0.1, 0.5), (0.5, 1.1), (f64::NAN, 0.5)] {
+            assert_eq!(MixtureWeights::new(s, u), None, "({s}, {u})");
+        }
+        assert_eq!(MixtureWeights::new(0.4, 0.5), Some(MixtureWeights::PRODUCT));
+        let (_, mat, alpha) = materials()[0].clone();
+        let wi = from_spherical(0.5, 0.0);
+        let mirror = DVec3::new(-wi.x, -wi.y, wi.z);
+        let far_share = |w: &MixtureWarp| {
+            let n = 64;
+            let far = (0..n * n)
+                .filter_map(|k| {
+                    w.sample(DVec2::new(
+                        ((k % n) as f64 + 0.5) / n as f64,
+                        ((k / n) as f64 + 0.5) / n as f64,
+                    ))
+                })
+                .filter(|wo| wo.dot(mirror) < 20f64.to_radians().cos())
+                .count();
+            far as f64 / (n * n) as f64
+        };
+        let product = far_share(&MixtureWarp::new(wi, alpha, &mat, 33));
+        let same = far_share(&MixtureWarp::with_weights(wi, alpha, &mat, 33, MixtureWeights::PRODUCT));
+        let wider = far_share(&MixtureWarp::with_weights(
+            wi,
+            alpha,
+            &mat,
+            33,
+            MixtureWeights::new(0.1, 0.85).unwrap(),
+        ));
+        println!("share of samples > 20 deg from the mirror direction: w_u 0.5 {product:.3}, w_u 0.85 {wider:.3}");
+        assert_eq!(product, same);
+        assert!(
+            wider > product + 0.1,
+            "far share: product {product:.3}, w_u 0.85 {wider:.3}"
+        );
+    }
+
     /// At normal incidence the first column of table vertices sits on the pole of the equal-angle
     /// density (1 / sin theta): read pointwise, it took the whole equal-angle share and put 90% of
     /// u within 10 deg of the normal. The share of samples far from the mirror direction must be
