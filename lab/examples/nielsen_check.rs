@@ -23,7 +23,7 @@ use gonio_shared::kinematics::Kinematics;
 use rand::{Rng, SeedableRng};
 use std::time::Instant;
 
-const RIDGES: [f64; 6] = [0.003, 0.01, 0.03, 0.1, 0.3, 1.0];
+const RIDGES: [f64; 8] = [0.0003, 0.001, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0];
 const CV_COUNTS: [usize; 3] = [24, 104, 456];
 const FOLDS: usize = 5;
 /// Pairs of the cross-validation's score (a fifth of `liu_log_err`'s, other seed: fast, fixed).
