@@ -44,6 +44,8 @@ enum Command {
     /// The closed loop in simulation: its error estimate, calibration, stop rules against the
     /// oracle, and closed loop / uniform at equal directions (--preset training|heldout|real).
     ClosedLoop(cli::plan::ClosedLoopArgs),
+    /// The closed loop's stop rule replayed on runs' rows, its ratio chosen on a training run's.
+    StopReplay(cli::plan::StopReplayArgs),
     /// The nielsen2015 peer side by side with adaptive and uniform, held-out MERL and the real measurements.
     Peer(cli::peer::PeerArgs),
     /// Render an encoder dataset (examples/capture.toml with random or MERL materials).
@@ -69,6 +71,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::PlanReport(args) => cli::plan::run_plan_report(args),
         Command::Tradeoff(args) => cli::plan::run_tradeoff(args),
         Command::ClosedLoop(args) => cli::plan::run_closed_loop(args),
+        Command::StopReplay(args) => cli::plan::run_stop_replay(args),
         Command::Peer(args) => cli::peer::run_peer(args),
         Command::Dataset(args) => cli::encoder::run_dataset(args),
         Command::Train(args) => cli::encoder::run_train(args),

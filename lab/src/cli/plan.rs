@@ -240,3 +240,35 @@ pub fn run_closed_loop(args: ClosedLoopArgs) -> Result<()> {
         tradeoff::closed_loop::run(args.preset, source, &args.output, &trial_args, progress)
     })
 }
+
+#[derive(clap::Args)]
+pub struct StopReplayArgs {
+    /// The training run's closed-loop.csv: the estimator's ratio is chosen on its rows.
+    #[arg(long, value_name = "CSV")]
+    pub train: PathBuf,
+    /// The rows' strategy (`adaptive`, or a trial's, e.g. `adaptive grids`).
+    #[arg(long)]
+    pub strategy: String,
+    /// The quantile of true / change FLIP used as the ratio (0.5: the product's rule).
+    #[arg(long, default_value_t = 0.5)]
+    pub quantile: f64,
+    /// Other runs' closed-loop.csv to replay on (the training run is replayed first).
+    #[arg(value_name = "CSV")]
+    pub runs: Vec<PathBuf>,
+}
+
+pub fn run_stop_replay(args: StopReplayArgs) -> Result<()> {
+    if !(args.quantile > 0.0 && args.quantile < 1.0) {
+        bail!("--quantile {} must be in (0, 1)", args.quantile);
+    }
+    let read = |p: &PathBuf| tradeoff::closed_loop::read_rows(p).map(|rows| (p.display().to_string(), rows));
+    let train = read(&args.train)?;
+    let mut runs = vec![train.clone()];
+    for p in &args.runs {
+        runs.push(read(p)?);
+    }
+    let md = tradeoff::closed_loop::stop_replay(&train.1, &args.strategy, args.quantile, &runs)
+        .map_err(anyhow::Error::msg)?;
+    print!("{md}");
+    Ok(())
+}

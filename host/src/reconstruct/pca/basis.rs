@@ -14,6 +14,14 @@ use std::path::Path;
 /// Components whose variance is below this fraction of the largest are dropped (numerical rank).
 const RANK_TOL: f64 = 1e-9;
 
+/// The specs of `Basis::small_analytic` (the first is inside its span by construction).
+pub const SMALL_ANALYTIC: [&str; 4] = [
+    "ggx:alpha=0.1,diffuse=0.2",
+    "ggx:alpha=0.3,diffuse=0.05",
+    "ggx:alpha=0.05,diffuse=0.5/0.3/0.1",
+    "lambert:albedo=0.4",
+];
+
 /// The basis: per bin its median, mean and the components' values.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Basis {
@@ -43,6 +51,16 @@ impl Basis {
     /// Build from `materials` (every material gives three observations, one per channel).
     pub fn build(materials: &[Box<dyn Material>]) -> Self {
         Self::from_observations(&tabulate(materials))
+    }
+
+    /// A basis of four analytic materials (`SMALL_ANALYTIC`), seconds to build in a debug build:
+    /// the fixture of this module's tests and of the lab's peer tests.
+    pub fn small_analytic() -> Self {
+        let materials: Vec<Box<dyn Material>> = SMALL_ANALYTIC
+            .iter()
+            .filter_map(|s| crate::brdf::parse_material(s).ok())
+            .collect();
+        Self::build(&materials)
     }
 
     /// Build from observations (`tabulate`'s rows: BINS values of f cos each).
@@ -212,26 +230,12 @@ pub(crate) mod tests {
     use super::*;
     use crate::brdf::parse_material;
 
-    pub(crate) fn small() -> Basis {
-        let specs = [
-            "ggx:alpha=0.1,diffuse=0.2",
-            "ggx:alpha=0.3,diffuse=0.05",
-            "ggx:alpha=0.05,diffuse=0.5/0.3/0.1",
-            "lambert:albedo=0.4",
-        ];
-        Basis::build(
-            &specs
-                .iter()
-                .map(|s| parse_material(s).expect("spec"))
-                .collect::<Vec<_>>(),
-        )
-    }
-
     /// Components are orthonormal over the bins, the cache reads back what was written, and a
     /// cache with another tag is rebuilt.
     #[test]
     fn components_are_orthonormal_and_the_cache_round_trips() {
-        let b = small();
+        assert!(SMALL_ANALYTIC.iter().all(|s| parse_material(s).is_ok()));
+        let b = Basis::small_analytic();
         assert!(b.k() >= 2 && b.k() <= 12, "{}", b.k());
         for i in 0..b.k() {
             for j in 0..b.k() {

@@ -91,20 +91,9 @@ pub(crate) mod tests {
     use super::*;
     use gonio::brdf::{parse_material, Material};
 
-    /// A basis of four analytic materials: quick to build in a debug test.
+    /// The host's four-material fixture basis: quick to build in a debug test.
     pub(crate) fn small() -> Basis {
-        let specs = [
-            "ggx:alpha=0.1,diffuse=0.2",
-            "ggx:alpha=0.3,diffuse=0.05",
-            "ggx:alpha=0.05,diffuse=0.5/0.3/0.1",
-            "lambert:albedo=0.4",
-        ];
-        Basis::build(
-            &specs
-                .iter()
-                .map(|s| parse_material(s).expect("spec"))
-                .collect::<Vec<_>>(),
-        )
+        Basis::small_analytic()
     }
 
     /// A material inside the basis' span is recovered from a selected set of directions.
@@ -114,7 +103,7 @@ pub(crate) mod tests {
         let candidates: Vec<usize> = (0..bins::BINS).filter(|&b| basis.valid[b]).collect();
         let set = select::select(&basis, &candidates, 2 * basis.k());
         let design = Design::new(&basis, set, 1e-6).expect("design");
-        let truth = parse_material("ggx:alpha=0.1,diffuse=0.2").expect("spec");
+        let truth = parse_material(basis::SMALL_ANALYTIC[0]).expect("spec");
         let values: Vec<DVec3> = design.pairs.iter().map(|&(wi, wo)| truth.eval(wi, wo)).collect();
         let rec = design.fit(&basis, &values);
         let (wi, wo) = centre(bins::index(5, 10, 20)).expect("above the horizon");

@@ -27,7 +27,7 @@ use gonio_shared::instrument::InstrumentConfig;
 use std::path::Path;
 
 mod summary;
-pub use summary::{quantile, replay, summary, with_current_constants};
+pub use summary::{quantile, replay, stop_replay, summary, with_current_constants};
 
 /// Material sets of the closed-loop report.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -127,14 +127,7 @@ impl Trial {
             return Ok(Trial::Designed);
         }
         if let Some(list) = s.strip_prefix("grids:") {
-            let grids = list
-                .split(',')
-                .map(|l| {
-                    let (n, m) = l.split_once('x')?;
-                    Some((n.trim().parse().ok()?, m.trim().parse().ok()?))
-                })
-                .collect::<Option<Vec<(usize, usize)>>>()
-                .ok_or_else(|| format!("trial {s:?}: a level is not NxM"))?;
+            let grids = pairs(list).ok_or_else(|| format!("trial {s:?}: a level is not NxM"))?;
             gonio::plan::check_levels(&grids, &[], PlanConfig::default().k).map_err(|e| e.to_string())?;
             return Ok(Trial::Grids(grids));
         }
@@ -162,14 +155,7 @@ impl Trial {
         let list = s
             .strip_prefix("schedule:")
             .ok_or_else(|| format!("trial {s:?}: expected reseed or schedule:KxN,KxN,..."))?;
-        let levels = list
-            .split(',')
-            .map(|l| {
-                let (k, n) = l.split_once('x')?;
-                Some((k.trim().parse().ok()?, n.trim().parse().ok()?))
-            })
-            .collect::<Option<Vec<(usize, usize)>>>()
-            .ok_or_else(|| format!("trial {s:?}: a level is not KxN"))?;
+        let levels = pairs(list).ok_or_else(|| format!("trial {s:?}: a level is not KxN"))?;
         let config = choose::config(Strategy::Auto, &levels, UNPADDED);
         gonio::plan::check_levels(&config.grids, &config.incoming, config.k).map_err(|e| e.to_string())?;
         Ok(Trial::Schedule(levels))
@@ -186,6 +172,16 @@ impl Trial {
             Trial::Schedule(levels) => format!("{} {}", row_name(strategy), choose::label(levels)),
         }
     }
+}
+
+/// `AxB,AxB,...` as [(A, B)]; None if any item is not two integers joined by `x`.
+fn pairs(list: &str) -> Option<Vec<(usize, usize)>> {
+    list.split(',')
+        .map(|l| {
+            let (a, b) = l.split_once('x')?;
+            Some((a.trim().parse().ok()?, b.trim().parse().ok()?))
+        })
+        .collect()
 }
 
 /// The rows' name of the product's plan (`auto`: `adaptive`) or the uniform grid.
@@ -262,6 +258,8 @@ pub fn run_rows(
     let mut scorer = Scorer::new(ENV_SIZE)?.with_env(env_scene);
     let no_env = || PlanError::Invalid("no environment scene".into());
     let mut rows = Vec::new();
+    // The peer's design (trial `designed`), made on the first material that needs it.
+    let mut design = None;
     for spec in materials {
         let truth = parse_material(spec)?;
         let truth_env = scorer.render_env(parse_material(spec)?, spec).ok_or_else(no_env)?;
@@ -313,6 +311,7 @@ pub fn run_rows(
                 uniform: &uniform,
                 max_level,
                 scorer: &mut scorer,
+                design: &mut design,
             };
             let runs = trial_runs(trial, &mut ctx)?;
             for (label, levels, choice) in runs {
@@ -348,6 +347,8 @@ struct MaterialRun<'a> {
     uniform: &'a [usize],
     max_level: usize,
     scorer: &'a mut Scorer,
+    /// The peer's designed level 1 and its instrument seconds, once made (trial `designed`).
+    design: &'a mut Option<(Vec<(glam::DVec3, glam::DVec3)>, f64)>,
 }
 
 impl MaterialRun<'_> {
@@ -391,13 +392,16 @@ fn trial_runs(trial: &Trial, m: &mut MaterialRun) -> Result<Vec<Run>, PlanError>
             ..PlanConfig::default()
         })?,
         Trial::Designed => {
-            let n = m.uniform.first().copied().unwrap_or(0);
-            let (pairs, seconds) = super::peer::design(m.instrument, n)?;
+            let (pairs, seconds) = match m.design.take() {
+                Some(d) => d,
+                None => super::peer::design(m.instrument, m.uniform.first().copied().unwrap_or(0))?,
+            };
             let designed = designed::Designed::new(m.photo_plan.0, &pairs, seconds)
                 .ok_or_else(|| PlanError::Invalid("a designed direction is below the horizon".into()))?;
             let values: Vec<_> = designed.pairs().iter().map(|&(wi, wo)| m.truth.eval(wi, wo)).collect();
             let summaries = designed.levels();
             let levels = assess_levels(&designed, &summaries, &values, m.spec, m.scorer, m.truth_env)?;
+            *m.design = Some((pairs, seconds));
             vec![(trial.label(Strategy::Auto), levels, None)]
         }
         Trial::Mixture(weights) => {
@@ -586,6 +590,32 @@ mod tests {
             e_out: None,
             prior: Some(if level == 1 { "two-lobes" } else { "pca" }.into()),
         }
+    }
+
+    /// The replay's ratio is the chosen quantile of the training rows' true / change FLIP, and a
+    /// larger ratio stops later (here one level later: 1.5x the oracle's time at 0.02).
+    #[test]
+    fn stop_replay_chooses_its_ratio_on_training_and_replays_other_runs() {
+        let rows: Vec<LoopRow> = [(0.03, None), (0.015, Some(0.03)), (0.008, Some(0.01))]
+            .iter()
+            .enumerate()
+            .map(|(l, &(t, c))| LoopRow {
+                change_flip: c,
+                ..row("a", "adaptive", l + 1, t)
+            })
+            .collect();
+        let runs = [("run".to_string(), rows.clone())];
+        let median = stop_replay(&rows, "adaptive", 0.5, &runs).unwrap();
+        assert!(median.contains("ratio (0.5 quantile) 0.500"), "{median}");
+        assert!(median.contains("| run | 0.02 | 1 of 1 | 1.00, 1.00 | 0 |"), "{median}");
+        assert!(median.contains("| run | 0.01 | 1 of 1 | 1.00, 1.00 | 0 |"), "{median}");
+        let cautious = stop_replay(&rows, "adaptive", 0.9, &runs).unwrap();
+        assert!(cautious.contains("ratio (0.9 quantile) 0.800"), "{cautious}");
+        assert!(
+            cautious.contains("| run | 0.02 | 1 of 1 | 1.50, 1.50 | 0 |"),
+            "{cautious}"
+        );
+        assert!(stop_replay(&rows, "uniform", 0.5, &runs).is_err());
     }
 
     /// A schedule trial parses K x N per level and is refused when its elevations do not nest.

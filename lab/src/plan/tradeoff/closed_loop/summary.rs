@@ -46,6 +46,77 @@ pub fn with_current_constants(mut rows: Vec<LoopRow>) -> Vec<LoopRow> {
     rows
 }
 
+/// The targets the stop rule is replayed at (point FLIP).
+const STOP_TARGETS: [f64; 2] = [0.02, 0.01];
+
+/// The stop rule replayed at `target` on `rows` (one strategy, their estimates set): scans meeting
+/// it at the stop level, time / oracle (geometric mean, max), scans whose target no level met.
+fn stop_cells(rows: &[&LoopRow], target: f64) -> String {
+    let mut materials: Vec<&str> = rows.iter().map(|r| r.material.as_str()).collect();
+    materials.dedup();
+    let (mut hit, mut n, mut ratios, mut unmet) = (0, 0, Vec::new(), 0);
+    for m in &materials {
+        let levels: Vec<&LoopRow> = rows.iter().copied().filter(|r| r.material == *m).collect();
+        if let Some((t, minutes, oracle)) = replay(&levels, target) {
+            n += 1;
+            hit += usize::from(t <= target);
+            match oracle {
+                Some(o) => ratios.push(minutes / o),
+                None => unmet += 1,
+            }
+        }
+    }
+    format!(
+        "{hit} of {n} | {:.2}, {:.2} | {unmet}",
+        geomean(&ratios),
+        quantile(ratios.clone(), 1.0)
+    )
+}
+
+/// The stop rule on `strategy`'s rows of other runs, its ratio the `q` quantile of true / change
+/// FLIP over `train`'s rows of that strategy (a schedule with other level steps needs its own
+/// ratio; with the product's rows and q = 0.5 this is `FLIP_RATIO` and the reports' stop tables).
+pub fn stop_replay(
+    train: &[LoopRow],
+    strategy: &str,
+    q: f64,
+    runs: &[(String, Vec<LoopRow>)],
+) -> Result<String, String> {
+    let of = |rows: &[LoopRow]| -> Vec<LoopRow> { rows.iter().filter(|r| r.strategy == strategy).cloned().collect() };
+    let ratios: Vec<f64> = of(train)
+        .iter()
+        .filter_map(|r| Some(r.true_flip? / r.change_flip?.max(1e-9)))
+        .collect();
+    if ratios.is_empty() {
+        return Err(format!(
+            "the training rows have no level of strategy {strategy:?} with a change FLIP"
+        ));
+    }
+    let ratio = quantile(ratios.clone(), q);
+    let mut md = format!(
+        "{strategy}: true / change FLIP over {} training levels: median {:.3}, 5% {:.3}, 95% {:.3}; the rule's ratio ({q} quantile) {ratio:.3}\n\n\
+         | run | target FLIP | scans meeting it at the stop level | time / oracle (geomean, max) | scans no level met |\n|---|---|---|---|---|\n",
+        ratios.len(),
+        quantile(ratios.clone(), 0.5),
+        quantile(ratios.clone(), 0.05),
+        quantile(ratios, 0.95)
+    );
+    for (name, rows) in runs {
+        let mut mine = of(rows);
+        if mine.is_empty() {
+            return Err(format!("{name}: no rows of strategy {strategy:?}"));
+        }
+        for r in &mut mine {
+            r.est_flip = r.change_flip.map(|d| d * ratio);
+        }
+        let refs: Vec<&LoopRow> = mine.iter().collect();
+        for target in STOP_TARGETS {
+            let _ = writeln!(md, "| {name} | {target} | {} |", stop_cells(&refs, target));
+        }
+    }
+    Ok(md)
+}
+
 /// The report's markdown from its rows.
 pub fn summary(rows: &[LoopRow], title: &str, regenerate: &str) -> String {
     let rows = &with_current_constants(rows.to_vec());
@@ -90,25 +161,8 @@ pub fn summary(rows: &[LoopRow], title: &str, regenerate: &str) -> String {
     materials.dedup();
     let _ = writeln!(md, "## Stop rules (replayed on the recorded estimates)\n");
     let _ = writeln!(md, "| target FLIP | scans meeting it at the stop level | time / oracle (geomean, max) | scans whose target no level met |\n|---|---|---|---|");
-    for target in [0.02, 0.01] {
-        let (mut hit, mut n, mut ratios, mut unmet) = (0, 0, Vec::new(), 0);
-        for m in &materials {
-            let levels: Vec<&LoopRow> = adaptive.iter().copied().filter(|r| r.material == *m).collect();
-            if let Some((t, minutes, oracle)) = replay(&levels, target) {
-                n += 1;
-                hit += usize::from(t <= target);
-                match oracle {
-                    Some(o) => ratios.push(minutes / o),
-                    None => unmet += 1,
-                }
-            }
-        }
-        let _ = writeln!(
-            md,
-            "| {target} | {hit} of {n} | {:.2}, {:.2} | {unmet} |",
-            geomean(&ratios),
-            quantile(ratios.clone(), 1.0)
-        );
+    for target in STOP_TARGETS {
+        let _ = writeln!(md, "| {target} | {} |", stop_cells(&adaptive, target));
     }
     absolute_errors(&mut md, rows);
     equal_directions(&mut md, rows, &materials, "adaptive", "closed loop");
@@ -303,6 +357,19 @@ fn short_name(spec: &str) -> &str {
     spec.rsplit(['/', ':']).next().unwrap_or(spec)
 }
 
+/// A level's cells: level, directions, minutes, point FLIP, env FLIP, brdf_log_err.
+fn level_cells(r: &LoopRow) -> String {
+    format!(
+        "{} | {} | {:.1} | {} | {} | {}",
+        r.level,
+        r.directions,
+        r.minutes,
+        fmt_opt(r.true_flip),
+        fmt_opt(r.env_flip),
+        fmt_opt(r.brdf_log_err)
+    )
+}
+
 /// Per material: the deepest level within `GOAL_MINUTES` of instrument time, both strategies.
 fn within_goal_minutes(md: &mut String, rows: &[LoopRow], materials: &[&str]) {
     let _ = writeln!(
@@ -318,17 +385,7 @@ fn within_goal_minutes(md: &mut String, rows: &[LoopRow], materials: &[&str]) {
                 .filter(|r| r.material == *m && r.strategy == strategy && r.minutes <= GOAL_MINUTES)
                 .max_by_key(|r| r.level);
             if let Some(r) = best {
-                let _ = writeln!(
-                    md,
-                    "| {} | {strategy} | {} | {} | {:.1} | {} | {} | {} |",
-                    short_name(m),
-                    r.level,
-                    r.directions,
-                    r.minutes,
-                    fmt_opt(r.true_flip),
-                    fmt_opt(r.env_flip),
-                    fmt_opt(r.brdf_log_err)
-                );
+                let _ = writeln!(md, "| {} | {strategy} | {} |", short_name(m), level_cells(r));
             }
         }
     }
@@ -353,14 +410,9 @@ fn per_level_table(md: &mut String, rows: &[LoopRow]) {
         };
         let _ = writeln!(
             md,
-            "| {} | {strategy} | {} | {} | {:.1} | {} | {} | {} | {est} |",
+            "| {} | {strategy} | {} | {est} |",
             short_name(&r.material),
-            r.level,
-            r.directions,
-            r.minutes,
-            fmt_opt(r.true_flip),
-            fmt_opt(r.env_flip),
-            fmt_opt(r.brdf_log_err)
+            level_cells(r)
         );
     }
 }
