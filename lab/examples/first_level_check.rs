@@ -20,11 +20,9 @@ use gonio::encoder::infer::Encoder;
 use gonio::encoder::ModelKind;
 use gonio::plan::closed_loop::ESTIMATE_SIZE;
 use gonio::plan::predict::{score, Scorer};
-use gonio::plan::{square_grids, PlanConfig, Planner, Strategy};
 use gonio::reconstruct::{reconstruct, Levels, RATIO_FLOOR};
 use gonio_lab::plan::tradeoff::choose::{alternate_slices, LeaveOut};
-use gonio_lab::plan::tradeoff::closed_loop::{quantile, read_rows, LoopPreset, LoopRow};
-use gonio_lab::plan::tradeoff::{capture_photo, photo_estimate};
+use gonio_lab::plan::tradeoff::closed_loop::{photo_plan, quantile, read_rows, LoopPreset, LoopRow};
 
 const CANDIDATES: [&str; 5] = ["change", "fit_rms", "fit_q90", "cv_rms", "cv_q90"];
 
@@ -65,25 +63,13 @@ fn spearman(a: &[f64], b: &[f64]) -> f64 {
 
 fn main() -> anyhow::Result<()> {
     let name = std::env::args().nth(1).unwrap_or_else(|| "training".into());
-    let preset = match name.as_str() {
-        "training" => LoopPreset::Training,
-        "heldout" => LoopPreset::Heldout,
-        "real" => LoopPreset::Real,
-        other => anyhow::bail!("unknown preset {other:?} (training, heldout or real)"),
-    };
+    let preset = LoopPreset::named(&name).map_err(anyhow::Error::msg)?;
     let encoder = Encoder::shipped(ModelKind::Ggx)?;
     let instrument = gonio::instrument::default_instrument();
     let mut scorer = Scorer::new(ESTIMATE_SIZE)?;
     let (mut truths, mut candidates) = (Vec::new(), vec![Vec::new(); CANDIDATES.len()]);
     for spec in preset.materials() {
-        let (_, photo) = capture_photo(&spec)?;
-        let (estimate, _) = photo_estimate(&photo, &encoder)?;
-        let config = PlanConfig {
-            strategy: Strategy::Auto,
-            grids: square_grids(4),
-            ..PlanConfig::default()
-        };
-        let plan = Planner::new(instrument, estimate)?.plan(&config)?;
+        let (_, plan) = photo_plan(&spec, &encoder, &instrument, 4)?;
         let truth = gonio::brdf::parse_material(&spec)?;
         let values = plan.measure(truth.as_ref());
         let nodes = plan.level_nodes(1).ok_or_else(|| anyhow::anyhow!("no level 1"))?;

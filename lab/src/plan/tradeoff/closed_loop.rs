@@ -41,6 +41,12 @@ pub enum LoopPreset {
 }
 
 impl LoopPreset {
+    /// The preset called `name` (training, heldout or real), for the lab's examples.
+    pub fn named(name: &str) -> Result<Self, String> {
+        <Self as clap::ValueEnum>::from_str(name, true)
+            .map_err(|_| format!("unknown preset {name:?} (training, heldout or real)"))
+    }
+
     pub fn materials(self) -> Vec<String> {
         let list: &[&str] = match self {
             LoopPreset::Training => &TRAINING_MATERIALS,
@@ -239,6 +245,25 @@ fn rows_of(material: &str, strategy: &str, levels: &[Scored], uniform: &[usize])
             prior: Some(a.prior.to_string()),
         })
         .collect()
+}
+
+/// The photo's estimate of `spec` and the product's plan from it (`max_level` square levels), as
+/// `run_rows` plans its `adaptive` rows: the lab's examples read the same plan.
+pub fn photo_plan(
+    spec: &str,
+    encoder: &Encoder,
+    instrument: &InstrumentConfig<f64>,
+    max_level: usize,
+) -> Result<(Estimate, Plan), PlanError> {
+    let (_, photo) = capture_photo(spec)?;
+    let (estimate, _) = photo_estimate(&photo, encoder)?;
+    let config = PlanConfig {
+        strategy: Strategy::Auto,
+        grids: square_grids(max_level),
+        ..PlanConfig::default()
+    };
+    let plan = Planner::new(*instrument, estimate.clone())?.plan(&config)?;
+    Ok((estimate, plan))
 }
 
 /// Run the loop's assessment at every level (as `closed_loop::run` with `StopRule::Depth`) on each
@@ -616,6 +641,15 @@ mod tests {
             "{cautious}"
         );
         assert!(stop_replay(&rows, "uniform", 0.5, &runs).is_err());
+    }
+
+    /// The examples' preset names are the command line's; others are refused in one line.
+    #[test]
+    fn presets_are_named_as_on_the_command_line() {
+        assert_eq!(LoopPreset::named("heldout"), Ok(LoopPreset::Heldout));
+        assert_eq!(LoopPreset::named("real"), Ok(LoopPreset::Real));
+        let err = LoopPreset::named("merl").unwrap_err();
+        assert!(err.contains("\"merl\"") && !err.contains('\n'), "{err}");
     }
 
     /// A schedule trial parses K x N per level and is refused when its elevations do not nest.

@@ -6,6 +6,8 @@
 //! elevation. The photo plan's own level-1 nodes are never measured, so its later levels read them
 //! as unmeasured nodes (the grid's nearest measured neighbour) and the cumulative count stays the
 //! uniform grid's. Level 1 is the fitted prior alone (no grid: its nodes are not the plan's).
+//! `Designed::mixed` keeps the plan's level 1 beside the design (the `level_one_fit` example's
+//! `mixed` rows: a smaller photo level plus the design of the remaining count).
 
 use glam::DVec3;
 use gonio::brdf::grid::NodeLayout;
@@ -19,7 +21,7 @@ pub struct Designed<'a> {
     design: Vec<(usize, DVec3, DVec3)>,
     /// Instrument seconds of measuring the design from the rest pose.
     design_seconds: f64,
-    /// Directions of the plan's own level 1 (never measured).
+    /// Directions of the plan's own level 1 never measured (all of them, or none when mixed).
     skipped: usize,
 }
 
@@ -27,6 +29,18 @@ impl<'a> Designed<'a> {
     /// None unless the plan has a level and every designed direction lies above the horizon.
     pub fn new(plan: &'a Plan, pairs: &[(DVec3, DVec3)], design_seconds: f64) -> Option<Self> {
         let skipped = plan.levels.first()?.cumulative_directions;
+        Self::with_skipped(plan, pairs, design_seconds, skipped)
+    }
+
+    /// Trial `mixed`: the design measured before the plan's own level 1, which is kept; level 1
+    /// is both (fitted alone, as the plan's level 1 is). Times add (the design is not re-ordered
+    /// with the plan's level: an upper bound).
+    pub fn mixed(plan: &'a Plan, pairs: &[(DVec3, DVec3)], design_seconds: f64) -> Option<Self> {
+        plan.levels.first()?;
+        Self::with_skipped(plan, pairs, design_seconds, 0)
+    }
+
+    fn with_skipped(plan: &'a Plan, pairs: &[(DVec3, DVec3)], design_seconds: f64, skipped: usize) -> Option<Self> {
         let nearest = |wi: DVec3| {
             let theta = wi.z.clamp(-1.0, 1.0).acos();
             (0..plan.thetas.len()).min_by(|&a, &b| {
@@ -60,20 +74,24 @@ impl<'a> Designed<'a> {
             return Vec::new();
         };
         let d = self.design.len();
+        // Seconds of the plan's level 1 this run does not spend.
+        let (skipped_s, skipped_raster) = match self.skipped {
+            0 => (0.0, 0.0),
+            _ => (p1.cumulative_seconds, p1.cumulative_raster_seconds),
+        };
         let mut first = p1.clone();
-        first.cumulative_directions = d;
+        first.cumulative_directions = d + p1.cumulative_directions - self.skipped;
         first.first = 0;
-        first.count = d;
-        first.cumulative_seconds = self.design_seconds;
-        first.cumulative_raster_seconds = self.design_seconds;
+        first.count = first.cumulative_directions;
+        first.cumulative_seconds = self.design_seconds + p1.cumulative_seconds - skipped_s;
+        first.cumulative_raster_seconds = self.design_seconds + p1.cumulative_raster_seconds - skipped_raster;
         let mut out = vec![first];
         for l in self.plan.levels.iter().skip(1) {
             let mut s = l.clone();
             s.cumulative_directions = d + l.cumulative_directions - self.skipped;
             s.first = d + l.first - self.skipped;
-            s.cumulative_seconds = self.design_seconds + l.cumulative_seconds - p1.cumulative_seconds;
-            s.cumulative_raster_seconds =
-                self.design_seconds + l.cumulative_raster_seconds - p1.cumulative_raster_seconds;
+            s.cumulative_seconds = self.design_seconds + l.cumulative_seconds - skipped_s;
+            s.cumulative_raster_seconds = self.design_seconds + l.cumulative_raster_seconds - skipped_raster;
             out.push(s);
         }
         out
@@ -91,7 +109,7 @@ impl Levels for Designed<'_> {
     fn level_nodes(&self, level: usize) -> Option<LevelNodes<'_>> {
         let nodes = self.plan.level_nodes(level)?;
         let d = self.design.len();
-        if level <= 1 {
+        if level <= 1 && self.skipped > 0 {
             // The fitted prior alone: a two-ring far-ring level keeps no residual grid.
             return Some(LevelNodes {
                 layout: NodeLayout::NestedFarRing,
@@ -169,5 +187,49 @@ mod tests {
         }
         let below = [(DVec3::new(0.0, 0.0, -1.0), DVec3::Z)];
         assert!(Designed::new(&plan, &below, 1.0).is_none());
+        assert!(Designed::mixed(&plan, &below, 1.0).is_none());
+    }
+
+    /// Mixed: the design is measured first and the plan's level 1 is kept, so every level holds
+    /// the plan's own measurements behind the design's, its nodes read the plan's directions, and
+    /// counts and seconds are the plan's plus the design's.
+    #[test]
+    fn mixed_keeps_the_plans_first_level_beside_the_design() {
+        let config = PlanConfig {
+            strategy: Strategy::Auto,
+            grids: square_grids(2),
+            ..PlanConfig::default()
+        };
+        let plan = Planner::new(gonio::instrument::default_instrument(), ggx_estimate(0.02, 0.5))
+            .unwrap()
+            .plan(&config)
+            .unwrap();
+        let from = |t: f64, p: f64| DVec3::new(t.sin() * p.cos(), t.sin() * p.sin(), t.cos());
+        let pairs: Vec<_> = (0..5)
+            .map(|i| (from(0.2 + 0.1 * i as f64, 0.0), from(0.5, 0.9 * i as f64)))
+            .collect();
+        let mixed = Designed::mixed(&plan, &pairs, 7.0).unwrap();
+        let levels = mixed.levels();
+        let all = mixed.pairs();
+        assert_eq!(all.len(), 5 + plan.directions.len());
+        assert_eq!(&all[..5], &pairs[..]);
+        for (a, p) in levels.iter().zip(&plan.levels) {
+            assert_eq!(a.cumulative_directions, 5 + p.cumulative_directions);
+            assert!((a.cumulative_seconds - (7.0 + p.cumulative_seconds)).abs() < 1e-9);
+            let nodes = mixed.level_nodes(a.level).unwrap();
+            let own = plan.level_nodes(a.level).unwrap();
+            assert_eq!(nodes.layout, own.layout);
+            assert_eq!(nodes.measured.len(), a.cumulative_directions);
+            for (m, o) in nodes.node_measurement.iter().zip(&own.node_measurement) {
+                assert_eq!(*m, o.map(|i| i + 5));
+                if let Some(m) = m {
+                    assert_eq!(nodes.measured[*m], own.measured[m - 5]);
+                }
+            }
+        }
+        let truth = parse_material("ggx:alpha=0.05,diffuse=0.3,specular=1").unwrap();
+        let values: Vec<_> = all.iter().map(|&(wi, wo)| truth.eval(wi, wo)).collect();
+        let rec = reconstruct(&mixed, 1, &values[..levels[0].cumulative_directions]).unwrap();
+        assert!(rec.eval(pairs[0].0, pairs[0].1).is_finite());
     }
 }

@@ -36,7 +36,7 @@ pub mod closed_loop;
 pub mod designed;
 pub mod liu;
 mod markdown;
-mod peer;
+pub mod peer;
 mod presets;
 pub mod reseed;
 
