@@ -58,6 +58,11 @@ pub fn layout_coords(wi: DVec3, wo: DVec3, dims: [usize; 3]) -> Option<[f64; 3]>
     Some([th, td, pd / PI * dims[2] as f64])
 }
 
+/// The bin a pair's continuous coordinates `b` fall in (floored, clamped to the grid of `dims`).
+pub fn layout_nearest(b: [f64; 3], dims: [usize; 3]) -> [usize; 3] {
+    std::array::from_fn(|i| (b[i].floor().max(0.0) as usize).min(dims[i] - 1))
+}
+
 /// Trilinear lookup between bin centres of a MERL-layout grid of `dims` bins: phi_d periodic, the
 /// other two clamped at the first and last centre; `bin(th, td, pd)` reads one bin.
 pub fn layout_trilinear(b: [f64; 3], dims: [usize; 3], bin: impl Fn(usize, usize, usize) -> DVec3) -> DVec3 {
@@ -181,12 +186,8 @@ impl MerlTable {
     }
 
     fn nearest(&self, b: [f64; 3]) -> DVec3 {
-        let clampi = |x: f64, n: usize| (x.floor().max(0.0) as usize).min(n - 1);
-        self.bin(index(
-            clampi(b[0], N_THETA_H),
-            clampi(b[1], N_THETA_D),
-            clampi(b[2], N_PHI_D),
-        ))
+        let [h, d, q] = layout_nearest(b, [N_THETA_H, N_THETA_D, N_PHI_D]);
+        self.bin(index(h, d, q))
     }
 
     fn trilinear(&self, b: [f64; 3]) -> DVec3 {
@@ -216,6 +217,15 @@ mod tests {
     use crate::brdf::frame::from_spherical;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
+
+    /// The nearest bin clamps every extreme into the grid: below 0, at and past the last bin, NaN.
+    #[test]
+    fn nearest_bin_clamps_into_the_grid() {
+        let dims = [4, 5, 6];
+        assert_eq!(layout_nearest([0.0, 0.99, 5.5], dims), [0, 0, 5]);
+        assert_eq!(layout_nearest([-3.0, 5.0, 1e9], dims), [0, 4, 5]);
+        assert_eq!(layout_nearest([f64::NAN, f64::INFINITY, -0.0], dims), [0, 4, 0]);
+    }
 
     fn random_pair(rng: &mut ChaCha8Rng) -> (DVec3, DVec3) {
         let mut dir = || from_spherical(rng.random::<f64>().acos(), 2.0 * PI * rng.random::<f64>());

@@ -12,7 +12,8 @@ pub const N_THETA_H: usize = 32;
 pub const N_THETA_D: usize = 32;
 pub const N_PHI_D: usize = 64;
 pub const BINS: usize = N_THETA_H * N_THETA_D * N_PHI_D;
-const DIMS: [usize; 3] = [N_THETA_H, N_THETA_D, N_PHI_D];
+/// The grid's bins per axis (theta_h, theta_d, phi_d).
+pub const DIMS: [usize; 3] = [N_THETA_H, N_THETA_D, N_PHI_D];
 
 /// Nielsen et al.'s mapping: the cosine product is clipped below at this value ...
 pub const COS_FLOOR: f64 = 0.01;

@@ -11,8 +11,9 @@
 //! values unexplained (`SpanResidual::relative`). No ground truth is read.
 
 use super::basis::Basis;
-use super::bins::{coords, cos_weight, index, map, unmap, N_PHI_D, N_THETA_D, N_THETA_H};
+use super::bins::{coords, cos_weight, index, map, unmap, DIMS};
 use super::{centre_weights, table};
+use crate::brdf::merl::layout_nearest;
 use crate::brdf::Material;
 use crate::reconstruct::{FittedPrior, LevelSamples, Prior, TwoLobesPrior};
 use glam::DVec3;
@@ -74,9 +75,8 @@ impl PcaModel {
     /// The bin a pair falls in (nearest: its continuous coordinates floored, clamped), None if the
     /// pair has no half vector or the bin is invalid.
     fn bin_of(&self, wi: DVec3, wo: DVec3) -> Option<usize> {
-        let c = coords(wi, wo)?;
-        let at = |x: f64, n: usize| (x.max(0.0) as usize).min(n - 1);
-        let b = index(at(c[0], N_THETA_H), at(c[1], N_THETA_D), at(c[2], N_PHI_D));
+        let [h, d, q] = layout_nearest(coords(wi, wo)?, DIMS);
+        let b = index(h, d, q);
         self.basis.valid[b].then_some(b)
     }
 
