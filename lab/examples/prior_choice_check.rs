@@ -17,9 +17,10 @@
 //! most `GUARD_TOLERANCE` above the unguarded trial's, the one that picks the basis least often
 //! (the most cautious guard that costs the training materials nothing).
 //!
-//!     cargo run --release -p gonio-lab --example prior_choice_check [--every N]
+//!     cargo run --release -p gonio-lab --example prior_choice_check [--every N] [--deep]
 //!
 //! `--every N` takes every N-th training material (a quicker look); the committed figures use N = 1.
+//! `--deep` adds a fourth level (16x16, 1,928 directions) to the three.
 
 use gonio::brdf::nbrdf::NeuralBrdf;
 use gonio::brdf::Material;
@@ -39,7 +40,9 @@ const MATERIAL_FOLDS: usize = 5;
 const CV_FOLDS: [usize; 3] = [3, 5, 10];
 const RIDGES: [f64; 6] = [1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3];
 const THRESHOLDS: [f64; 6] = [0.9, 1.0, 1.1, 1.25, 1.5, 2.0];
-const GRIDS: [(usize, usize); 3] = [(2, 2), (4, 4), (8, 8)];
+const GRIDS: [(usize, usize); 4] = [(2, 2), (4, 4), (8, 8), (16, 16)];
+/// Each level's direction count, as the tables head their columns.
+const COUNTS: [&str; 4] = ["24", "104", "456", "1,928"];
 const MAX_RMS: [f64; 11] = [0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0, f64::INFINITY];
 const MAX_RELATIVE: [f64; 10] = [0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, f64::INFINITY];
 /// Summed log ratio a guard may cost over the unguarded trial (six cells: ~0.1 % per cell).
@@ -135,7 +138,7 @@ fn main() -> anyhow::Result<()> {
     let scorer = Scorer::new(16)?;
     let liu = liu_pairs();
     let config = PlanConfig {
-        grids: GRIDS.to_vec(),
+        grids: GRIDS[..if args.iter().any(|a| a == "--deep") { 4 } else { 3 }].to_vec(),
         ..PlanConfig::default()
     };
     let mut cases: Vec<Case> = Vec::new();
@@ -186,9 +189,23 @@ fn main() -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The deepest level among `cases`.
+fn levels(cases: &[Case]) -> usize {
+    cases.iter().map(|c| c.level).max().unwrap_or(0)
+}
+
+/// A table's head: `first`, one column per level of `cases`, then `rest`.
+fn head(cases: &[Case], first: &str, rest: &[&str]) -> String {
+    let cols: Vec<&str> = std::iter::once(first)
+        .chain(COUNTS[..levels(cases)].iter().copied())
+        .chain(rest.iter().copied())
+        .collect();
+    format!("| {} |\n|{}", cols.join(" | "), "---|".repeat(cols.len()))
+}
+
 /// Geometric mean of `picked / lobes` per level, for brdf (0) and liu (1).
 fn ratios(cases: &[Case], pick: impl Fn(&Case) -> Option<usize>) -> Vec<[f64; 2]> {
-    (1..=GRIDS.len())
+    (1..=levels(cases))
         .map(|level| {
             let of: Vec<&Case> = cases.iter().filter(|c| c.level == level).collect();
             let geo = |get: &dyn Fn(&Case) -> f64| {
@@ -218,7 +235,7 @@ fn report(cases: &[Case]) {
          against the two lobes' (below 1: better), per level:\n",
         cases.len()
     );
-    println!("| setting | 24 | 104 | 456 | share picking PCA |\n|---|---|---|---|---|");
+    println!("{}", head(cases, "setting", &["share picking PCA"]));
     for (r, ridge) in RIDGES.iter().enumerate() {
         line(format!("PCA always, ridge {ridge}"), &ratios(cases, |_| Some(r)), 1.0);
     }
@@ -294,7 +311,8 @@ fn report_guard(cases: &[Case]) {
         q(0.75),
         q(1.0)
     );
-    println!("\n| guard (CV {FOLDS} folds, ridge {PCA_RIDGE}, threshold {THRESHOLD}) | 24 | 104 | 456 | share picking PCA | summed log ratio |\n|---|---|---|---|---|---|");
+    let first = format!("guard (CV {FOLDS} folds, ridge {PCA_RIDGE}, threshold {THRESHOLD})");
+    println!("\n{}", head(cases, &first, &["share picking PCA", "summed log ratio"]));
     let mut rows = Vec::new();
     for majority in [false, true] {
         for &max_rms in &MAX_RMS {
