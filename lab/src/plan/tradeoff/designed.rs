@@ -136,24 +136,15 @@ impl Levels for Designed<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::plan::tradeoff::auto_plan;
     use gonio::brdf::{parse_material, Material};
-    use gonio::plan::{ggx_estimate, square_grids, PlanConfig, Planner, Strategy};
     use gonio::reconstruct::reconstruct;
 
     /// The design is level 1 and stays in every later level; the plan's level-1 nodes are read as
     /// unmeasured; counts never exceed the plan's; every level reconstructs finitely.
     #[test]
     fn the_design_replaces_level_one_and_stays_measured() {
-        let instrument = gonio::instrument::default_instrument();
-        let config = PlanConfig {
-            strategy: Strategy::Auto,
-            grids: square_grids(3),
-            ..PlanConfig::default()
-        };
-        let plan = Planner::new(instrument, ggx_estimate(0.02, 0.5))
-            .unwrap()
-            .plan(&config)
-            .unwrap();
+        let plan = auto_plan(0.02, 3);
         let c1 = plan.levels[0].cumulative_directions;
         let from = |t: f64, p: f64| DVec3::new(t.sin() * p.cos(), t.sin() * p.sin(), t.cos());
         let pairs: Vec<_> = (0..c1)
@@ -195,15 +186,7 @@ mod tests {
     /// counts and seconds are the plan's plus the design's.
     #[test]
     fn mixed_keeps_the_plans_first_level_beside_the_design() {
-        let config = PlanConfig {
-            strategy: Strategy::Auto,
-            grids: square_grids(2),
-            ..PlanConfig::default()
-        };
-        let plan = Planner::new(gonio::instrument::default_instrument(), ggx_estimate(0.02, 0.5))
-            .unwrap()
-            .plan(&config)
-            .unwrap();
+        let plan = auto_plan(0.02, 2);
         let from = |t: f64, p: f64| DVec3::new(t.sin() * p.cos(), t.sin() * p.sin(), t.cos());
         let pairs: Vec<_> = (0..5)
             .map(|i| (from(0.2 + 0.1 * i as f64, 0.0), from(0.5, 0.9 * i as f64)))

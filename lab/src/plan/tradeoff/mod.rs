@@ -524,6 +524,24 @@ pub fn render_sheet(truth: &Image, truth_env: &Image, rows: &[Vec<Image>]) -> (u
     tile(&panels, side, side, cols)
 }
 
+/// Tests' plan: the product's (`auto`) from a GGX estimate of roughness `alpha` (diffuse 0.5) on
+/// the default instrument, `levels` square levels.
+#[cfg(test)]
+pub(crate) fn auto_plan(alpha: f64, levels: usize) -> gonio::plan::Plan {
+    let config = PlanConfig {
+        strategy: Strategy::Auto,
+        grids: gonio::plan::square_grids(levels),
+        ..PlanConfig::default()
+    };
+    Planner::new(
+        gonio::instrument::default_instrument(),
+        gonio::plan::ggx_estimate(alpha, 0.5),
+    )
+    .expect("planner")
+    .plan(&config)
+    .expect("plan")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -143,28 +143,15 @@ pub fn replan(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::plan::tradeoff::auto_plan;
     use gonio::brdf::{parse_material, Material};
-    use gonio::plan::{ggx_estimate, square_grids, Strategy};
     use gonio::reconstruct::reconstruct;
 
     /// Re-seeded levels keep every level-1 measurement, measure none of the new plan's level-1
     /// directions, point every node at a measurement of its own slice, and reconstruct finitely.
     #[test]
     fn reseeded_levels_keep_level_one_and_skip_the_new_plans_level_one() {
-        let instrument = gonio::instrument::default_instrument();
-        let config = PlanConfig {
-            strategy: Strategy::Auto,
-            grids: square_grids(3),
-            ..PlanConfig::default()
-        };
-        let first = Planner::new(instrument, ggx_estimate(0.3, 0.5))
-            .unwrap()
-            .plan(&config)
-            .unwrap();
-        let next = Planner::new(instrument, ggx_estimate(0.02, 0.5))
-            .unwrap()
-            .plan(&config)
-            .unwrap();
+        let (first, next) = (auto_plan(0.3, 3), auto_plan(0.02, 3));
         let r = Reseeded::new(&first, &next).unwrap();
         let levels = r.levels();
         let pairs = r.pairs();
