@@ -137,7 +137,19 @@ impl Levels for Designed<'_> {
 mod tests {
     use super::*;
     use crate::plan::tradeoff::auto_plan;
+    use gonio::brdf::frame::from_spherical;
     use gonio::brdf::{parse_material, Material};
+
+    /// `n` pairs above the horizon: pair i's incoming at polar angle `ti.0 + i ti.1` (phi 0), its
+    /// outgoing at polar angle `to.0` and azimuth `i to.1`.
+    fn fan(n: usize, ti: (f64, f64), to: (f64, f64)) -> Vec<(DVec3, DVec3)> {
+        (0..n)
+            .map(|i| {
+                let i = i as f64;
+                (from_spherical(ti.0 + i * ti.1, 0.0), from_spherical(to.0, i * to.1))
+            })
+            .collect()
+    }
     use gonio::reconstruct::reconstruct;
 
     /// The design is level 1 and stays in every later level; the plan's level-1 nodes are read as
@@ -146,10 +158,7 @@ mod tests {
     fn the_design_replaces_level_one_and_stays_measured() {
         let plan = auto_plan(0.02, 3);
         let c1 = plan.levels[0].cumulative_directions;
-        let from = |t: f64, p: f64| DVec3::new(t.sin() * p.cos(), t.sin() * p.sin(), t.cos());
-        let pairs: Vec<_> = (0..c1)
-            .map(|i| (from(0.1 + 0.05 * i as f64, 0.0), from(0.3, 0.2 * i as f64)))
-            .collect();
+        let pairs = fan(c1, (0.1, 0.05), (0.3, 0.2));
         let designed = Designed::new(&plan, &pairs, 10.0).unwrap();
         let levels = designed.levels();
         let all = designed.pairs();
@@ -187,10 +196,7 @@ mod tests {
     #[test]
     fn mixed_keeps_the_plans_first_level_beside_the_design() {
         let plan = auto_plan(0.02, 2);
-        let from = |t: f64, p: f64| DVec3::new(t.sin() * p.cos(), t.sin() * p.sin(), t.cos());
-        let pairs: Vec<_> = (0..5)
-            .map(|i| (from(0.2 + 0.1 * i as f64, 0.0), from(0.5, 0.9 * i as f64)))
-            .collect();
+        let pairs = fan(5, (0.2, 0.1), (0.5, 0.9));
         let mixed = Designed::mixed(&plan, &pairs, 7.0).unwrap();
         let levels = mixed.levels();
         let all = mixed.pairs();
