@@ -7,8 +7,10 @@
 //! with the two-lobe prior and with the basis prior at each ridge. Per level the scan's own
 //! cross-validation (each fold count) says which it would pick; "pick PCA when its CV error is below
 //! threshold x the two lobes'". Printed: per (folds, ridge, threshold) the geometric mean over
-//! materials of the picked reconstruction's brdf_log_err and liu_log_err against the two lobes',
-//! per level, and the best setting (lowest mean over levels of brdf_log_err and liu_log_err).
+//! materials of the picked reconstruction's brdf_log_err, liu_log_err and point FLIP (the capture
+//! render, the point-lit sphere, at `RENDER_SIZE` px) against the two lobes', per
+//! level, and the best setting (lowest mean over levels of brdf_log_err and liu_log_err; FLIP is
+//! shown, not chosen on, so that it can say where a choice made on the first two costs renders).
 //!
 //! Then the guard (`selected::MAX_UNEXPLAINED`, the product's since issue 28) at the shipped
 //! trial's folds, ridge and threshold: every bound on the basis fit's in-sample residual (RMS and
@@ -26,9 +28,9 @@ use gonio::brdf::nbrdf::NeuralBrdf;
 use gonio::brdf::Material;
 use gonio::encoder::infer::Encoder;
 use gonio::encoder::ModelKind;
-use gonio::plan::predict::{log_err_over, Scorer};
+use gonio::plan::predict::{log_err_over, score, Scorer};
 use gonio::plan::{PlanConfig, Planner};
-use gonio::reconstruct::{reconstruct_with, FittedPrior, LevelSamples, Prior, TwoLobesPrior};
+use gonio::reconstruct::{reconstruct_with, FittedPrior, LevelSamples, Prior, Reconstruction, TwoLobesPrior};
 use gonio_lab::plan::nielsen::basis::{tabulate, Basis};
 use gonio_lab::plan::nielsen::selected::{cross_validate_folds, PcaModel, PcaPrior, SpanResidual, FOLDS, PCA_RIDGE};
 use gonio_lab::plan::nielsen::training_names;
@@ -45,6 +47,8 @@ const GRIDS: [(usize, usize); 4] = [(2, 2), (4, 4), (8, 8), (16, 16)];
 const COUNTS: [&str; 4] = ["24", "104", "456", "1,928"];
 const MAX_RMS: [f64; 11] = [0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0, f64::INFINITY];
 const MAX_RELATIVE: [f64; 10] = [0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, f64::INFINITY];
+/// Side of the point-light capture render the FLIP column scores (the closed loop's estimate size).
+const RENDER_SIZE: usize = 64;
 /// Summed log ratio a guard may cost over the unguarded trial (six cells: ~0.1 % per cell).
 const GUARD_TOLERANCE: f64 = 0.005;
 
@@ -98,8 +102,8 @@ impl Prior for Recorder {
 /// One (material, level): scores of the two lobes and of the basis per ridge (brdf, liu), and the CV.
 struct Case {
     level: usize,
-    lobes: (f64, f64),
-    pca: Vec<(f64, f64)>,
+    lobes: [f64; 3],
+    pca: Vec<[f64; 3]>,
     /// Per fold count: totals (two lobes, per ridge).
     cv: Vec<(f64, Vec<f64>)>,
     /// Per fold count, per fold.
@@ -136,6 +140,7 @@ fn main() -> anyhow::Result<()> {
     let encoder = Encoder::shipped(ModelKind::Ggx)?;
     let instrument = gonio::instrument::default_instrument();
     let scorer = Scorer::new(16)?;
+    let mut renders = Scorer::new(RENDER_SIZE)?;
     let liu = liu_pairs();
     let config = PlanConfig {
         grids: GRIDS[..if args.iter().any(|a| a == "--deep") { 4 } else { 3 }].to_vec(),
@@ -154,14 +159,18 @@ fn main() -> anyhow::Result<()> {
             let (_, photo) = capture_photo(&spec)?;
             let (estimate, _) = photo_estimate(&photo, &encoder)?;
             let plan = Planner::new(instrument, estimate)?.plan(&config)?;
+            let reference = renders.render(Box::new(NeuralBrdf::bundled(names[m])?));
             let measured = plan.measure(truth);
             for l in &plan.levels {
                 let recorder = Recorder {
                     model: model.clone(),
                     cv: Mutex::new((Vec::new(), None)),
                 };
-                let scores = |rec: &dyn Material| (scorer.log_err(truth, rec), log_err_over(&liu, truth, rec));
-                let lobes = scores(&reconstruct_with(&plan, l.level, &measured, &recorder)?);
+                let mut scores = |rec: Reconstruction| -> anyhow::Result<[f64; 3]> {
+                    let (brdf, liu) = (scorer.log_err(truth, &rec), log_err_over(&liu, truth, &rec));
+                    Ok([brdf, liu, score(&reference, &renders.render(Box::new(rec)))?.flip])
+                };
+                let lobes = scores(reconstruct_with(&plan, l.level, &measured, &recorder)?)?;
                 let pca = RIDGES
                     .iter()
                     .map(|&ridge| {
@@ -169,7 +178,7 @@ fn main() -> anyhow::Result<()> {
                             model: model.clone(),
                             ridge,
                         };
-                        Ok(scores(&reconstruct_with(&plan, l.level, &measured, &prior)?))
+                        scores(reconstruct_with(&plan, l.level, &measured, &prior)?)
                     })
                     .collect::<anyhow::Result<Vec<_>>>()?;
                 let (folds, residual) = recorder.cv.into_inner().map_err(|_| anyhow::anyhow!("poisoned"))?;
@@ -189,6 +198,13 @@ fn main() -> anyhow::Result<()> {
     Ok(())
 }
 
+/// One table cell per level: brdf / liu / point FLIP ratios.
+fn cells(r: &[[f64; 3]]) -> String {
+    r.iter()
+        .map(|v| format!(" {:.3} / {:.3} / {:.3} |", v[0], v[1], v[2]))
+        .collect()
+}
+
 /// The deepest level among `cases`.
 fn levels(cases: &[Case]) -> usize {
     cases.iter().map(|c| c.level).max().unwrap_or(0)
@@ -203,8 +219,8 @@ fn head(cases: &[Case], first: &str, rest: &[&str]) -> String {
     format!("| {} |\n|{}", cols.join(" | "), "---|".repeat(cols.len()))
 }
 
-/// Geometric mean of `picked / lobes` per level, for brdf (0) and liu (1).
-fn ratios(cases: &[Case], pick: impl Fn(&Case) -> Option<usize>) -> Vec<[f64; 2]> {
+/// Geometric mean of `picked / lobes` per level, for brdf (0), liu (1) and point FLIP (2).
+fn ratios(cases: &[Case], pick: impl Fn(&Case) -> Option<usize>) -> Vec<[f64; 3]> {
     (1..=levels(cases))
         .map(|level| {
             let of: Vec<&Case> = cases.iter().filter(|c| c.level == level).collect();
@@ -213,26 +229,20 @@ fn ratios(cases: &[Case], pick: impl Fn(&Case) -> Option<usize>) -> Vec<[f64; 2]
                 (s / of.len().max(1) as f64).exp()
             };
             let picked = |c: &Case, i: usize| match pick(c) {
-                Some(r) => [c.pca[r].0, c.pca[r].1][i],
-                None => [c.lobes.0, c.lobes.1][i],
+                Some(r) => c.pca[r][i],
+                None => c.lobes[i],
             };
-            [0, 1].map(|i| geo(&|c| picked(c, i)) / geo(&|c| [c.lobes.0, c.lobes.1][i]))
+            [0, 1, 2].map(|i| geo(&|c| picked(c, i)) / geo(&|c| c.lobes[i]))
         })
         .collect()
 }
 
 fn report(cases: &[Case]) {
-    let line = |label: String, r: &[[f64; 2]], share: f64| {
-        println!(
-            "| {label} |{} {share:.2} |",
-            r.iter()
-                .map(|v| format!(" {:.3} / {:.3} |", v[0], v[1]))
-                .collect::<String>()
-        )
-    };
+    let line = |label: String, r: &[[f64; 3]], share: f64| println!("| {label} |{} {share:.2} |", cells(r));
     println!(
         "\n{} cases; geometric mean over materials of the picked reconstruction's brdf_log_err / liu_log_err \
-         against the two lobes' (below 1: better), per level:\n",
+         / point FLIP ({RENDER_SIZE} px capture render) against the two lobes' (below 1: better), per level; \
+         settings and guards are chosen on the first two:\n",
         cases.len()
     );
     println!("{}", head(cases, "setting", &["share picking PCA"]));
@@ -242,8 +252,8 @@ fn report(cases: &[Case]) {
     line(
         "oracle (the better per case)".into(),
         &ratios(cases, |c| {
-            let best = (0..RIDGES.len()).min_by(|&a, &b| c.pca[a].0.total_cmp(&c.pca[b].0))?;
-            (c.pca[best].0 < c.lobes.0).then_some(best)
+            let best = (0..RIDGES.len()).min_by(|&a, &b| c.pca[a][0].total_cmp(&c.pca[b][0]))?;
+            (c.pca[best][0] < c.lobes[0]).then_some(best)
         }),
         f64::NAN,
     );
@@ -290,7 +300,7 @@ fn report_guard(cases: &[Case]) {
     let mut rows: Vec<(usize, SpanResidual, f64)> = cases
         .iter()
         .filter(|c| pick(open)(c).is_some())
-        .map(|c| (c.level, c.residual.unwrap_or_default(), c.pca[r].0 / c.lobes.0))
+        .map(|c| (c.level, c.residual.unwrap_or_default(), c.pca[r][0] / c.lobes[0]))
         .collect();
     rows.sort_by(|a, b| a.1.rms.total_cmp(&b.1.rms));
     for (level, res, ratio) in &rows {
@@ -330,9 +340,7 @@ fn report_guard(cases: &[Case]) {
                 let sum = rs.iter().map(|v| v[0].ln() + v[1].ln()).sum::<f64>();
                 println!(
                     "| rms <= {max_rms}, relative <= {max_relative}, majority {majority} |{} {share:.2} | {sum:.4} |",
-                    rs.iter()
-                        .map(|v| format!(" {:.3} / {:.3} |", v[0], v[1]))
-                        .collect::<String>()
+                    cells(&rs)
                 );
                 rows.push((g, share, sum));
             }
