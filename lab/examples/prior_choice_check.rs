@@ -99,7 +99,7 @@ impl Prior for Recorder {
     }
 }
 
-/// One (material, level): scores of the two lobes and of the basis per ridge (brdf, liu), and the CV.
+/// One (material, level): scores of the two lobes and of the basis per ridge (brdf, liu, point FLIP), and the CV.
 struct Case {
     level: usize,
     lobes: [f64; 3],
