@@ -8,7 +8,7 @@
 //! cross-validation (each fold count) says which it would pick; "pick PCA when its CV error is below
 //! threshold x the two lobes'". Printed: per (folds, ridge, threshold) the geometric mean over
 //! materials of the picked reconstruction's brdf_log_err, liu_log_err and point FLIP (the capture
-//! render, the point-lit sphere, at `RENDER_SIZE` px) against the two lobes', per
+//! render, the point-lit sphere, at the closed loop's `ESTIMATE_SIZE` px) against the two lobes', per
 //! level, and the best setting (lowest mean over levels of brdf_log_err and liu_log_err; FLIP is
 //! shown, not chosen on, so that it can say where a choice made on the first two costs renders).
 //!
@@ -28,6 +28,7 @@ use gonio::brdf::nbrdf::NeuralBrdf;
 use gonio::brdf::Material;
 use gonio::encoder::infer::Encoder;
 use gonio::encoder::ModelKind;
+use gonio::plan::closed_loop::ESTIMATE_SIZE;
 use gonio::plan::predict::{log_err_over, score, Scorer};
 use gonio::plan::{PlanConfig, Planner};
 use gonio::reconstruct::{reconstruct_with, FittedPrior, LevelSamples, Prior, Reconstruction, TwoLobesPrior};
@@ -47,8 +48,6 @@ const GRIDS: [(usize, usize); 4] = [(2, 2), (4, 4), (8, 8), (16, 16)];
 const COUNTS: [&str; 4] = ["24", "104", "456", "1,928"];
 const MAX_RMS: [f64; 11] = [0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0, f64::INFINITY];
 const MAX_RELATIVE: [f64; 10] = [0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, f64::INFINITY];
-/// Side of the point-light capture render the FLIP column scores (the closed loop's estimate size).
-const RENDER_SIZE: usize = 64;
 /// Summed log ratio a guard may cost over the unguarded trial (six cells: ~0.1 % per cell).
 const GUARD_TOLERANCE: f64 = 0.005;
 
@@ -139,8 +138,9 @@ fn main() -> anyhow::Result<()> {
     let obs = tabulate(&materials);
     let encoder = Encoder::shipped(ModelKind::Ggx)?;
     let instrument = gonio::instrument::default_instrument();
-    let scorer = Scorer::new(16)?;
-    let mut renders = Scorer::new(RENDER_SIZE)?;
+    // One scorer for all three columns: brdf_log_err reads its direction set, FLIP renders at the
+    // closed loop's own size.
+    let mut scorer = Scorer::new(ESTIMATE_SIZE)?;
     let liu = liu_pairs();
     let config = PlanConfig {
         grids: GRIDS[..if args.iter().any(|a| a == "--deep") { 4 } else { 3 }].to_vec(),
@@ -159,7 +159,7 @@ fn main() -> anyhow::Result<()> {
             let (_, photo) = capture_photo(&spec)?;
             let (estimate, _) = photo_estimate(&photo, &encoder)?;
             let plan = Planner::new(instrument, estimate)?.plan(&config)?;
-            let reference = renders.render(Box::new(NeuralBrdf::bundled(names[m])?));
+            let reference = scorer.render(Box::new(NeuralBrdf::bundled(names[m])?));
             let measured = plan.measure(truth);
             for l in &plan.levels {
                 let recorder = Recorder {
@@ -168,7 +168,7 @@ fn main() -> anyhow::Result<()> {
                 };
                 let mut scores = |rec: Reconstruction| -> anyhow::Result<[f64; 3]> {
                     let (brdf, liu) = (scorer.log_err(truth, &rec), log_err_over(&liu, truth, &rec));
-                    Ok([brdf, liu, score(&reference, &renders.render(Box::new(rec)))?.flip])
+                    Ok([brdf, liu, score(&reference, &scorer.render(Box::new(rec)))?.flip])
                 };
                 let lobes = scores(reconstruct_with(&plan, l.level, &measured, &recorder)?)?;
                 let pca = RIDGES
@@ -241,7 +241,7 @@ fn report(cases: &[Case]) {
     let line = |label: String, r: &[[f64; 3]], share: f64| println!("| {label} |{} {share:.2} |", cells(r));
     println!(
         "\n{} cases; geometric mean over materials of the picked reconstruction's brdf_log_err / liu_log_err \
-         / point FLIP ({RENDER_SIZE} px capture render) against the two lobes' (below 1: better), per level; \
+         / point FLIP ({ESTIMATE_SIZE} px capture render) against the two lobes' (below 1: better), per level; \
          settings and guards are chosen on the first two:\n",
         cases.len()
     );
