@@ -69,7 +69,7 @@ fn main() -> anyhow::Result<()> {
         println!("== {spec} (photo estimate {})", estimate.model.to_spec());
         let truth_img = scorer.render(parse_material(spec)?);
         if let Some(dir) = &maps {
-            truth_img.write(&dir.join(format!("{}-truth.png", spec.replace(':', "_"))))?;
+            truth_img.write(&dir.join(format!("{}-truth.png", gonio_lab::plan::tradeoff::file_stem(spec))))?;
         }
         let mut profiles: Vec<(String, Box<dyn Material>)> = Vec::new();
         for strategy in [Strategy::Auto, Strategy::Uniform] {
@@ -84,7 +84,7 @@ fn main() -> anyhow::Result<()> {
             let (c, map) = gonio::render::metrics::compare(&truth_img, &img)?;
             let prior = rec.prior().cloned();
             if let Some(dir) = &maps {
-                let stem = format!("{}-{}-{level}", spec.replace(':', "_"), plan.warp);
+                let stem = format!("{}-{}-{level}", gonio_lab::plan::tradeoff::file_stem(spec), plan.warp);
                 map.write_png(&dir.join(format!("{stem}-flip.png")))?;
                 img.write(&dir.join(format!("{stem}.png")))?;
             }

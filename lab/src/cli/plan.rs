@@ -191,7 +191,8 @@ pub struct ClosedLoopArgs {
     #[arg(long, default_value = "examples/sphere-sky.toml")]
     pub env_scene: PathBuf,
     /// Lab trials beside the loop and the uniform grid (repeatable): `reseed` (the default when
-    /// none is given), `schedule:KxN,KxN,...` (incoming elevations x outgoing grid per level),
+    /// none is given), `confirm` (the lobe-following plan kept only if level 1's fit confirms a
+    /// sharp lobe), `schedule:KxN,KxN,...` (incoming elevations x outgoing grid per level),
     /// `choose:C,C,...` (the measurements choose elevations or outgoing grid per level, one row
     /// set per constant C; `inf`: never elevations), `none`.
     #[arg(long = "trial")]

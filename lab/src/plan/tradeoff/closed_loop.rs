@@ -106,6 +106,10 @@ pub const GOAL_MINUTES: f64 = 10.0;
 pub enum Trial {
     /// Levels 2.. planned from level 1's fit (`reseed`), rows `reseed`.
     Reseed,
+    /// The photo's lobe-following plan kept only while level 1's fit confirms a sharp lobe; where
+    /// the fit's stronger lobe is rough (`auto` on it plans the uniform grid), levels 2.. follow the
+    /// uniform grid, its own level-1 nodes filled from their neighbours (`confirm`), rows `confirm`.
+    Confirm,
     /// Per-level incoming elevations and outgoing N x N, [(K, N)] (`PlanConfig::incoming`), for
     /// the product's plan and the uniform grid: rows `adaptive K1xN1,...` and `uniform K1xN1,...`.
     Schedule(Vec<(usize, usize)>),
@@ -131,6 +135,9 @@ impl Trial {
         }
         if s == "designed" {
             return Ok(Trial::Designed);
+        }
+        if s == "confirm" {
+            return Ok(Trial::Confirm);
         }
         if let Some(list) = s.strip_prefix("grids:") {
             let grids = pairs(list).ok_or_else(|| format!("trial {s:?}: a level is not NxM"))?;
@@ -171,6 +178,7 @@ impl Trial {
     fn label(&self, strategy: Strategy) -> String {
         match self {
             Trial::Reseed => "reseed".into(),
+            Trial::Confirm => "confirm".into(),
             Trial::Choose(_) => choose_label(strategy, f64::INFINITY),
             Trial::Mixture(_) => "adaptive mix".into(),
             Trial::Designed => "designed".into(),
@@ -401,9 +409,21 @@ impl MaterialRun<'_> {
 /// A trial's runs on one material.
 fn trial_runs(trial: &Trial, m: &mut MaterialRun) -> Result<Vec<Run>, PlanError> {
     Ok(match trial {
-        Trial::Reseed => {
+        Trial::Reseed | Trial::Confirm => {
             let (first, config) = m.photo_plan;
-            let levels = reseeded_levels(first, config, m.instrument, m.uniform, m.spec, m.scorer, m.truth_env)?;
+            let level1 = gonio::reconstruct::reconstruct(first, 1, &first.measure(m.truth))?;
+            let next = match trial {
+                Trial::Reseed => reseed::replan(m.instrument, config, level1.prior())?,
+                _ => reseed::unconfirmed(first, m.instrument, m.estimate, config, level1.prior())?,
+            };
+            let skipped = match trial {
+                Trial::Reseed => reseed::SkippedNodes::NearestFirst,
+                _ => reseed::SkippedNodes::SameOrUnmeasured,
+            };
+            let levels = match next {
+                Some(next) => replanned_levels((first, &next, skipped), m.uniform, m.spec, m.scorer, m.truth_env)?,
+                None => None,
+            };
             vec![(
                 trial.label(Strategy::Auto),
                 levels.unwrap_or_else(|| m.photo_levels.to_vec()),
@@ -483,21 +503,17 @@ fn choose_runs(
     Ok(out)
 }
 
-/// Levels 2.. planned from level 1's fit (`reseed`): None (the photo's plan goes on) unless every
-/// level's count is within the uniform grid's.
-fn reseeded_levels(
-    first: &gonio::plan::Plan,
-    config: &PlanConfig,
-    instrument: &InstrumentConfig<f64>,
+/// Level 1 of `first`, then levels 2.. of `next` (`reseed`, `confirm`): None (the photo's plan
+/// goes on) unless every level's count is within the uniform grid's.
+fn replanned_levels(
+    (first, next, skipped): (&Plan, &Plan, reseed::SkippedNodes),
     uniform: &[usize],
     spec: &str,
     scorer: &mut Scorer,
     truth_env: &gonio::render::Image,
 ) -> Result<Option<Vec<Scored>>, PlanError> {
     let truth = parse_material(spec)?;
-    let level1 = gonio::reconstruct::reconstruct(first, 1, &first.measure(truth.as_ref()))?;
-    let next = reseed::replan(instrument, config, level1.prior())?;
-    let Some(r) = next.as_ref().and_then(|next| reseed::Reseeded::new(first, next)) else {
+    let Some(r) = reseed::Reseeded::new(first, next, skipped) else {
         return Ok(None);
     };
     let within = r

@@ -471,7 +471,7 @@ pub fn run(
 }
 
 /// A material spec as a file name: letters, digits, '-' and '.' kept, anything else '_'.
-fn file_stem(spec: &str) -> String {
+pub fn file_stem(spec: &str) -> String {
     short(spec)
         .chars()
         .map(|c| {

@@ -7,7 +7,7 @@
 
 use gonio::brdf::analytic::Ggx;
 use gonio::brdf::spec::Analytic;
-use gonio::plan::{Estimate, LevelSummary, Plan, PlanConfig, PlanError, Planner};
+use gonio::plan::{Estimate, LevelSummary, Plan, PlanConfig, PlanError, Planner, Strategy};
 use gonio::reconstruct::{FittedPrior, LevelNodes, Levels};
 use gonio_shared::instrument::InstrumentConfig;
 
@@ -36,19 +36,34 @@ pub fn estimate_from_prior(prior: &FittedPrior) -> Option<Estimate> {
     })
 }
 
-/// Level 1 of the photo's plan, then levels 2.. of the plan re-seeded from level 1's fit.
+/// What the nodes of the second plan's own level 1 (never measured) read.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SkippedNodes {
+    /// The nearest level-1 measurement of the first plan in their slice (`reseed`).
+    NearestFirst,
+    /// A level-1 measurement of the first plan at the same direction (the zenith of the normal
+    /// slice, where every warp has its pole), else nothing: the grid fills them from their
+    /// nearest measured node (`confirm`).
+    SameOrUnmeasured,
+}
+
+/// Two directions closer than this (cosine; ~0.03 deg) are one direction.
+const SAME_DIRECTION_COS: f64 = 1.0 - 1e-7;
+
+/// Level 1 of the photo's plan, then levels 2.. of another plan (re-seeded from level 1's fit).
 pub struct Reseeded<'a> {
     first: &'a Plan,
     next: &'a Plan,
     /// Directions of `first`'s level 1 (the measurements every later level starts from).
     first_count: usize,
-    /// Directions of `next`'s own level 1 (never measured: their nodes read `first`'s).
+    /// Directions of `next`'s own level 1 (never measured: their nodes read `skipped_nodes`).
     skipped: usize,
+    skipped_nodes: SkippedNodes,
 }
 
 impl<'a> Reseeded<'a> {
     /// None unless both plans have the same incoming elevations and at least one level.
-    pub fn new(first: &'a Plan, next: &'a Plan) -> Option<Self> {
+    pub fn new(first: &'a Plan, next: &'a Plan, skipped_nodes: SkippedNodes) -> Option<Self> {
         if first.thetas != next.thetas {
             return None;
         }
@@ -57,22 +72,24 @@ impl<'a> Reseeded<'a> {
             next,
             first_count: first.levels.first()?.cumulative_directions,
             skipped: next.levels.first()?.cumulative_directions,
+            skipped_nodes,
         })
     }
 
-    /// Where `next`'s direction `d` is measured, in the measurement order of `Reseeded`: one of
-    /// level 1's (the nearest in its slice, for `next`'s own level-1 directions) or after them.
+    /// Where `next`'s direction `d` is measured, in the measurement order of `Reseeded`: after
+    /// level 1's, or for `next`'s own level-1 directions as `skipped_nodes` says.
     fn measurement_of(&self, d: usize) -> Option<usize> {
         if d >= self.skipped {
             return Some(self.first_count + d - self.skipped);
         }
         let target = self.next.directions.get(d)?;
-        self.first.directions[..self.first_count]
+        let (i, p) = self.first.directions[..self.first_count]
             .iter()
             .enumerate()
             .filter(|(_, p)| p.k == target.k)
-            .max_by(|(_, a), (_, b)| a.wo.dot(target.wo).total_cmp(&b.wo.dot(target.wo)))
-            .map(|(i, _)| i)
+            .max_by(|(_, a), (_, b)| a.wo.dot(target.wo).total_cmp(&b.wo.dot(target.wo)))?;
+        let same = p.wo.dot(target.wo) >= SAME_DIRECTION_COS;
+        (same || self.skipped_nodes == SkippedNodes::NearestFirst).then_some(i)
     }
 
     /// The per-level summaries: level 1 of `first`, then `next`'s levels without its level 1
@@ -140,6 +157,29 @@ pub fn replan(
     Planner::new(*instrument, estimate)?.plan(config).map(Some)
 }
 
+/// Trial `confirm`: the uniform grid for levels 2.. when `first` follows a lobe (mixture) that
+/// level 1's fit does not confirm (its stronger lobe is rough enough for `auto` to plan the
+/// uniform grid); None (the photo's plan goes on) otherwise, and for a fit of another kind.
+pub fn unconfirmed(
+    first: &Plan,
+    instrument: &InstrumentConfig<f64>,
+    photo: &Estimate,
+    config: &PlanConfig,
+    fitted: Option<&FittedPrior>,
+) -> Result<Option<Plan>, PlanError> {
+    let rough = fitted
+        .and_then(estimate_from_prior)
+        .is_some_and(|e| Strategy::Auto.resolve(e.alpha()) == Strategy::Uniform);
+    if first.warp != Strategy::Mixture || !rough {
+        return Ok(None);
+    }
+    let uniform = PlanConfig {
+        strategy: Strategy::Uniform,
+        ..config.clone()
+    };
+    Planner::new(*instrument, photo.clone())?.plan(&uniform).map(Some)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -152,7 +192,7 @@ mod tests {
     #[test]
     fn reseeded_levels_keep_level_one_and_skip_the_new_plans_level_one() {
         let (first, next) = (auto_plan(0.3, 3), auto_plan(0.02, 3));
-        let r = Reseeded::new(&first, &next).unwrap();
+        let r = Reseeded::new(&first, &next, SkippedNodes::NearestFirst).unwrap();
         let levels = r.levels();
         let pairs = r.pairs();
         assert_eq!(levels.len(), 3);
@@ -176,6 +216,45 @@ mod tests {
             let v = rec.eval(pairs[0].0, pairs[0].1);
             assert!(v.is_finite(), "{v}");
         }
+    }
+
+    /// `confirm` switches a lobe-following plan to the uniform grid only when level 1's stronger
+    /// lobe is rough; a sharp fit, a plan already uniform and a fit of no lobe keep the photo's plan.
+    #[test]
+    fn only_an_unconfirmed_sharp_plan_switches_to_the_uniform_grid() {
+        let instrument = gonio::instrument::default_instrument();
+        let config = PlanConfig {
+            strategy: Strategy::Auto,
+            grids: gonio::plan::square_grids(2),
+            ..PlanConfig::default()
+        };
+        let (sharp, rough) = (auto_plan(0.02, 2), auto_plan(0.3, 2));
+        assert_eq!((sharp.warp, rough.warp), (Strategy::Mixture, Strategy::Uniform));
+        let photo = gonio::plan::ggx_estimate(0.02, 0.5);
+        let fit = |alpha: f64| {
+            FittedPrior::TwoLobes(gonio::brdf::fit_lobes::TwoLobes {
+                diffuse: glam::DVec3::splat(0.2),
+                sharp_alpha: alpha,
+                sharp: glam::DVec3::ONE,
+                broad_alpha: 0.5,
+                broad: glam::DVec3::splat(0.1),
+                sharp_grazing: glam::DVec3::ONE,
+                broad_grazing: glam::DVec3::splat(0.1),
+                coated: glam::DVec3::ZERO,
+            })
+        };
+        let switch = |first: &Plan, fitted: Option<&FittedPrior>| {
+            unconfirmed(first, &instrument, &photo, &config, fitted).unwrap()
+        };
+        let next = switch(&sharp, Some(&fit(0.2))).expect("a rough fit of a sharp plan switches");
+        assert_eq!(next.warp, Strategy::Uniform);
+        assert_eq!(next.thetas, sharp.thetas);
+        assert!(
+            switch(&sharp, Some(&fit(0.02))).is_none(),
+            "a sharp fit confirms the plan"
+        );
+        assert!(switch(&rough, Some(&fit(0.2))).is_none(), "the uniform grid stays");
+        assert!(switch(&sharp, None).is_none(), "no fit, no switch");
     }
 
     /// A two-lobe prior re-seeds with the lobe of the larger colour and its diffuse base.
