@@ -2,6 +2,7 @@
 //! values: the log(1 + f cos) loss, the roughness pair on a log grid (docs/planner.md, "The two-lobe fit").
 
 use super::analytic::ggx_specular;
+use super::frame::luminance;
 use super::log_nnls::solve_capped;
 use super::Material;
 use glam::DVec3;
@@ -78,13 +79,37 @@ impl Material for TwoLobes {
         if wi.z <= 0.0 || wo.z <= 0.0 {
             return DVec3::ZERO;
         }
+        let (sharp, broad) = self.lobes(wi, wo);
+        self.diffuse * FRAC_1_PI + self.coated * (FRAC_1_PI * coated_diffuse_shape(wi, wo)) + sharp + broad
+    }
+}
+
+impl TwoLobes {
+    /// The sharp and the broad GGX lobe alone (both centred on the mirror direction: they move with wi).
+    fn lobes(&self, wi: DVec3, wo: DVec3) -> (DVec3, DVec3) {
         let x = schlick_weight(wi, wo);
         // ks + (kg - ks) x, not ks (1 - x) + kg x: a lobe without rise (kg = ks) then evaluates to
         // exactly ks, bit for bit as before the rise existed (the encoder's two-lobe dataset).
-        self.diffuse * FRAC_1_PI
-            + self.coated * (FRAC_1_PI * coated_diffuse_shape(wi, wo))
-            + (self.sharp + (self.sharp_grazing - self.sharp) * x) * ggx_specular(wi, wo, self.sharp_alpha)
-            + (self.broad + (self.broad_grazing - self.broad) * x) * ggx_specular(wi, wo, self.broad_alpha)
+        (
+            (self.sharp + (self.sharp_grazing - self.sharp) * x) * ggx_specular(wi, wo, self.sharp_alpha),
+            (self.broad + (self.broad_grazing - self.broad) * x) * ggx_specular(wi, wo, self.broad_alpha),
+        )
+    }
+
+    /// The share of f's luminance at (wi, wo) made of the two GGX lobes (they move with wi); 1 where
+    /// f is 0 (nothing to split).
+    pub fn lobe_share(&self, wi: DVec3, wo: DVec3) -> f64 {
+        if wi.z <= 0.0 || wo.z <= 0.0 {
+            return 1.0;
+        }
+        let (sharp, broad) = self.lobes(wi, wo);
+        let (l, total) = (luminance(sharp + broad), luminance(self.eval(wi, wo)));
+        // Guard: a black or non-finite total has no share to split.
+        if total > 0.0 && l.is_finite() && total.is_finite() {
+            (l / total).clamp(0.0, 1.0)
+        } else {
+            1.0
+        }
     }
 }
 
@@ -383,6 +408,36 @@ pub fn resolvable_alpha(pairs: &[(DVec3, DVec3)]) -> f64 {
 mod tests {
     use super::*;
     use crate::brdf::fit::fit_directions;
+
+    /// The lobes' share is 0 without lobes, 1 without anything else, 1 where f is black or the
+    /// pair is below the horizon, and grows toward the mirror direction; it is finite at grazing.
+    #[test]
+    fn the_lobe_share_at_its_extremes() {
+        use crate::brdf::frame::from_spherical;
+        let model = |diffuse: f64, lobe: f64| TwoLobes {
+            diffuse: DVec3::splat(diffuse),
+            sharp_alpha: 0.02,
+            sharp: DVec3::splat(lobe),
+            broad_alpha: 0.2,
+            broad: DVec3::splat(lobe),
+            sharp_grazing: DVec3::splat(lobe),
+            broad_grazing: DVec3::splat(lobe),
+            coated: DVec3::ZERO,
+        };
+        let wi = from_spherical(0.5, 0.0);
+        let mirror = from_spherical(0.5, std::f64::consts::PI);
+        let back = from_spherical(1.5, 0.0);
+        assert_eq!(model(0.5, 0.0).lobe_share(wi, mirror), 0.0);
+        assert_eq!(model(0.0, 1.0).lobe_share(wi, back), 1.0);
+        assert_eq!(model(0.0, 0.0).lobe_share(wi, mirror), 1.0, "black: nothing to split");
+        assert_eq!(model(0.5, 1.0).lobe_share(wi, -mirror), 1.0, "below the horizon");
+        let mixed = model(0.5, 1.0);
+        let (peak, far) = (mixed.lobe_share(wi, mirror), mixed.lobe_share(wi, back));
+        assert!(peak > 0.99 && far < peak && far >= 0.0, "{peak} {far}");
+        let edge = std::f64::consts::FRAC_PI_2 - 1e-4;
+        let grazing = mixed.lobe_share(from_spherical(edge, 0.0), from_spherical(edge, 3.0));
+        assert!((0.0..=1.0).contains(&grazing), "{grazing}");
+    }
 
     /// Samples of a two-lobe material come back as its two lobes; a one-lobe material comes back
     /// with the other lobe (nearly) empty.

@@ -26,15 +26,15 @@ use glam::DVec3;
 pub const ESTIMATE_SIZE: usize = 64;
 /// True point FLIP over the change FLIP between consecutive levels on the 14 training materials
 /// (42 levels): median, 5% and 95% quantiles (`gonio-lab closed-loop --preset training`,
-/// docs/tradeoff/closed-loop/training/closed-loop.md; re-derived when the product's prior changes).
+/// docs/tradeoff/closed-loop/training/closed-loop.md; re-derived when the product's reconstruction changes).
 pub const FLIP_RATIO: f64 = 0.776;
-pub const FLIP_RATIO_LO: f64 = 0.452;
+pub const FLIP_RATIO_LO: f64 = 0.453;
 pub const FLIP_RATIO_HI: f64 = 1.171;
 /// True render RMSE over the change RMSE (sets the PSNR estimate). Not yet measured: 1 (the
 /// estimate is the change itself); the lab report does not record the change PSNR yet.
 pub const RMSE_RATIO: f64 = 1.0;
 /// Level L's 90% log-space half-width over level L-1's held-out residual quantile: with 0.6 the
-/// training materials' per-direction intervals hold 92.1% of true values (levels 2-4, the same report).
+/// training materials' per-direction intervals hold 91.6% of true values (levels 2-4, the same report).
 pub const INTERVAL_SHRINK: f64 = 0.6;
 /// The documented default target when the user gives no rule: estimated point FLIP <= 0.01.
 pub const DEFAULT_TARGET_FLIP: f64 = 0.01;

@@ -2,7 +2,8 @@
 //!
 //! A prior fitted to the level's own measurements (`prior`) gives the shape; the measurement grid
 //! holds each node's residual against it as a ratio, looked up through the warp re-centred on the
-//! query's own wi. This module never reads the planner: it reads a level through `Levels`.
+//! query's own wi where the fitted lobes make f, through each slice's own warp elsewhere. This
+//! module never reads the planner: it reads a level through `Levels`.
 
 pub mod pca;
 pub mod prior;
@@ -71,7 +72,7 @@ pub fn level_keeps_residual(layout: NodeLayout, n: usize) -> bool {
 /// The product reconstruction's settings in one line (a scan records them; a resume compares them).
 pub fn settings() -> String {
     format!(
-        "prior {} ({} folds, ridge {}, unexplained <= {}), ratio residual (floor {RATIO_FLOOR} /sr), query lookup",
+        "prior {} ({} folds, ridge {}, unexplained <= {}), ratio residual (floor {RATIO_FLOOR} /sr), lookup blended by the lobes' share",
         pca::selected::NAME,
         pca::selected::FOLDS,
         pca::selected::PCA_RIDGE,
@@ -195,15 +196,37 @@ impl Reconstruction {
     }
 }
 
-impl Material for Reconstruction {
-    fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
-        // Both bracketing slices look u up through the warp re-centred on the query's own wi.
-        let v = self
+impl Reconstruction {
+    /// The interpolated residual at (wi, wo). On a lobe-following plan each slice can look wo up
+    /// two ways: through its warp re-centred on the query's own wi (a lobe that moves with wi is
+    /// then found at the same u in both bracketing slices) or through its own warp (as its nodes
+    /// were placed; far from the lobe the re-centred warp maps grazing back-scatter into a sliver
+    /// of u). The fitted lobes' share of the prior at (wi, wo) weighs the first, the rest of f the
+    /// second; a basis prior, which has no lobes to follow, keeps the first (docs/planner.md).
+    fn residual(&self, wi: DVec3, wo: DVec3) -> DVec3 {
+        if !self.slices.iter().any(|s| matches!(s, SliceWarp::Mixture(_))) {
+            return self.grid.eval(wi, wo);
+        }
+        let query = self
             .grid
             .eval_with_lookup(wi, wo, &|k, wi, wo| match self.slices.get(k)? {
                 SliceWarp::Mixture(m) => m.invert_from(wi, wo),
                 other => other.invert(wo),
             });
+        let share = match &self.prior {
+            Some(FittedPrior::TwoLobes(t)) => t.lobe_share(wi, wo),
+            _ => 1.0,
+        };
+        if share >= 1.0 {
+            return query;
+        }
+        share * query + (1.0 - share) * self.grid.eval(wi, wo)
+    }
+}
+
+impl Material for Reconstruction {
+    fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
+        let v = self.residual(wi, wo);
         let base = match &self.prior {
             Some(p) => forward(p.eval(wi, wo)),
             None => DVec3::ZERO,

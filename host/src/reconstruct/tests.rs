@@ -131,3 +131,89 @@ fn the_sharp_lobe_floor_never_exceeds_a_share_of_the_estimate() {
         );
     }
 }
+
+/// On mixture slices the residual reads the query lookup where the prior is all lobes, each
+/// slice's own warp where it has none, and a blend in between; on uniform slices both agree.
+#[test]
+fn the_residual_lookup_follows_the_lobes_share() {
+    use crate::brdf::fit_lobes::TwoLobes;
+    use crate::brdf::warp::MixtureWarp;
+    let estimate = Ggx {
+        alpha: 0.05,
+        diffuse: DVec3::splat(0.2),
+        specular: DVec3::ONE,
+    };
+    let thetas = vec![0.3, 0.9];
+    let slices: Vec<SliceWarp> = thetas
+        .iter()
+        .map(|&t| {
+            let wi = from_spherical(t, 0.0);
+            SliceWarp::Mixture(std::sync::Arc::new(MixtureWarp::new(wi, 0.05, &estimate, 33)))
+        })
+        .collect();
+    let (n, m) = (4, 4);
+    let mut grid = MeasurementGrid::from_slices(
+        slices.clone(),
+        NodeLayout::Nested,
+        thetas.clone(),
+        n,
+        m,
+        vec![DVec3::ZERO; 2 * n * m],
+        vec![false; 2 * n * m],
+    )
+    .expect("grid");
+    // A residual that varies across nodes, so the two lookups differ.
+    for k in 0..2 {
+        for j in 0..m {
+            for i in 0..n {
+                let r = 0.1 * (i as f64) - 0.05 * (j as f64) + 0.2 * k as f64;
+                grid.set_node(k, i, j, Some(DVec3::new(r, 0.5 * r, -r)));
+            }
+        }
+    }
+    let lobes = |diffuse: f64, lobe: f64| TwoLobes {
+        diffuse: DVec3::splat(diffuse),
+        sharp_alpha: 0.05,
+        sharp: DVec3::splat(lobe),
+        broad_alpha: 0.3,
+        broad: DVec3::splat(lobe),
+        sharp_grazing: DVec3::splat(lobe),
+        broad_grazing: DVec3::splat(lobe),
+        coated: DVec3::ZERO,
+    };
+    let rec = |prior: TwoLobes| Reconstruction {
+        grid: grid.clone(),
+        slices: slices.clone(),
+        prior: Some(FittedPrior::TwoLobes(prior)),
+    };
+    let (wi, wo) = (from_spherical(0.6, 0.0), from_spherical(1.2, 2.5));
+    let query = grid.eval_with_lookup(wi, wo, &|k, wi, wo| match slices.get(k)? {
+        SliceWarp::Mixture(w) => w.invert_from(wi, wo),
+        other => other.invert(wo),
+    });
+    let own = grid.eval(wi, wo);
+    assert!(
+        (query - own).abs().max_element() > 1e-3,
+        "the lookups must differ here: {query} {own}"
+    );
+    assert_eq!(
+        rec(lobes(0.0, 1.0)).residual(wi, wo),
+        query,
+        "all lobes: the query lookup"
+    );
+    assert_eq!(
+        rec(lobes(0.5, 0.0)).residual(wi, wo),
+        own,
+        "no lobe: the slice's own warp"
+    );
+    let mixed = lobes(0.5, 1.0);
+    let s = mixed.lobe_share(wi, wo);
+    assert!(s > 0.0 && s < 1.0, "{s}");
+    let v = rec(mixed).residual(wi, wo);
+    assert!((v - (s * query + (1.0 - s) * own)).abs().max_element() < 1e-12, "{v}");
+    // Uniform slices: one lookup, whatever the prior.
+    let uniform = Uniform2x2::new(vec![0.2, 0.8]);
+    let values = vec![DVec3::splat(0.3); uniform.measured.len()];
+    let r = reconstruct_with(&uniform, 1, &values, &TwoLobesPrior).expect("reconstruct");
+    assert_eq!(r.residual(wi, wo), r.grid().eval(wi, wo));
+}
