@@ -673,6 +673,8 @@ mod tests {
     fn trials_parse_and_refuse_schedules_that_do_not_nest() {
         assert_eq!(Trial::parse("reseed"), Ok(Trial::Reseed));
         assert_eq!(Trial::parse("designed"), Ok(Trial::Designed));
+        assert_eq!(Trial::parse("confirm"), Ok(Trial::Confirm));
+        assert_eq!(Trial::Confirm.label(Strategy::Auto), "confirm");
         assert_eq!(
             Trial::parse("grids:2x2,4x2,4x4"),
             Ok(Trial::Grids(vec![(2, 2), (4, 2), (4, 4)]))
