@@ -412,13 +412,15 @@ fn trial_runs(trial: &Trial, m: &mut MaterialRun) -> Result<Vec<Run>, PlanError>
         Trial::Reseed | Trial::Confirm => {
             let (first, config) = m.photo_plan;
             let level1 = gonio::reconstruct::reconstruct(first, 1, &first.measure(m.truth))?;
-            let next = match trial {
-                Trial::Reseed => reseed::replan(m.instrument, config, level1.prior())?,
-                _ => reseed::unconfirmed(first, m.instrument, m.estimate, config, level1.prior())?,
-            };
-            let skipped = match trial {
-                Trial::Reseed => reseed::SkippedNodes::NearestFirst,
-                _ => reseed::SkippedNodes::SameOrUnmeasured,
+            let (next, skipped) = match trial {
+                Trial::Reseed => (
+                    reseed::replan(m.instrument, config, level1.prior())?,
+                    reseed::SkippedNodes::NearestFirst,
+                ),
+                _ => (
+                    reseed::unconfirmed(first, m.instrument, m.estimate, config, level1.prior())?,
+                    reseed::SkippedNodes::SameOrUnmeasured,
+                ),
             };
             let levels = match next {
                 Some(next) => replanned_levels((first, &next, skipped), m.uniform, m.spec, m.scorer, m.truth_env)?,

@@ -218,6 +218,26 @@ mod tests {
         }
     }
 
+    /// Under `SameOrUnmeasured` the second plan's own level-1 nodes read a level-1 measurement only
+    /// at the same direction (the zenith of the normal slice); under `NearestFirst` every one reads one.
+    #[test]
+    fn skipped_nodes_read_level_one_only_at_the_same_direction() {
+        let (first, next) = (auto_plan(0.02, 3), auto_plan(0.3, 3));
+        let skipped = next.levels[0].cumulative_directions;
+        let count = |rule| {
+            let r = Reseeded::new(&first, &next, rule).unwrap();
+            (0..skipped).filter(|&d| r.measurement_of(d).is_some()).count()
+        };
+        assert_eq!(count(SkippedNodes::NearestFirst), skipped);
+        let same = count(SkippedNodes::SameOrUnmeasured);
+        assert!(same >= 1 && same < skipped, "{same} of {skipped}");
+        let r = Reseeded::new(&first, &next, SkippedNodes::SameOrUnmeasured).unwrap();
+        for d in (0..skipped).filter(|&d| r.measurement_of(d).is_some()) {
+            let i = r.measurement_of(d).unwrap();
+            assert!(first.directions[i].wo.dot(next.directions[d].wo) >= SAME_DIRECTION_COS);
+        }
+    }
+
     /// `confirm` switches a lobe-following plan to the uniform grid only when level 1's stronger
     /// lobe is rough; a sharp fit, a plan already uniform and a fit of no lobe keep the photo's plan.
     #[test]
