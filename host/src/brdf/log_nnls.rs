@@ -1,17 +1,36 @@
 //! Non-negative least squares on log(1 + f cos): the per-channel solver of `fit_lobes`.
 
-/// Gauss-Newton iterations per solve (the linear start is usually close).
+/// Gauss-Newton iterations per solve at most (the linear start is usually close).
 const GN_ITERATIONS: usize = 12;
+/// A Gauss-Newton step that lowers the loss by less than this share of it ends the solve: later
+/// steps move the fitted values by parts in 10^7 (docs/scan.md, "Host time between levels").
+const GN_TOLERANCE: f64 = 1e-9;
+
+/// The model's f cos = offset + sum x_p cols_p at sample i (`offset` empty: none).
+#[inline(always)]
+fn model_at<const N: usize>(cols: &[&[f64]; N], offset: &[f64], x: &[f64; N], i: usize) -> f64 {
+    offset.get(i).copied().unwrap_or(0.0) + (0..N).map(|p| x[p] * cols[p][i]).sum::<f64>()
+}
 
 /// Weighted sum of squared log residuals of coefficients `x` on columns `cols` (already times cos),
-/// plus `offset` (empty: none).
-fn loss<const N: usize>(cols: &[&[f64]; N], t: &[f64], w: &[f64], offset: &[f64], x: &[f64; N]) -> f64 {
-    (0..t.len())
-        .map(|i| {
-            let f: f64 = offset.get(i).copied().unwrap_or(0.0) + (0..N).map(|p| x[p] * cols[p][i]).sum::<f64>();
-            w[i] * (f.ln_1p() - t[i]).powi(2)
-        })
-        .sum()
+/// plus `offset` (empty: none); each sample's 1 + f cos and log residual are written to `at` (the
+/// next Gauss-Newton step reuses them: the logarithms are most of the fit's time).
+fn loss<const N: usize>(
+    cols: &[&[f64]; N],
+    t: &[f64],
+    w: &[f64],
+    offset: &[f64],
+    x: &[f64; N],
+    at: &mut [(f64, f64)],
+) -> f64 {
+    let mut sum = 0.0;
+    for i in 0..t.len() {
+        let f = model_at(cols, offset, x, i);
+        let r = f.ln_1p() - t[i];
+        at[i] = (1.0 + f, r);
+        sum += w[i] * r * r;
+    }
+    sum
 }
 
 /// `solve_channel` with the first coefficient (the Lambert term) at most `cap`: when the free
@@ -42,31 +61,33 @@ fn solve_channel<const N: usize>(cols: &[&[f64]; N], t: &[f64], w: &[f64], offse
         (std::array::from_fn(|p| cols[p][i]), t[i].exp_m1() - off(i), w[i])
     });
     let mut x = nnls(&a, &r);
-    let mut best = loss(cols, t, w, offset, &x);
+    // (1 + f cos, log residual) of each sample at x, and at a candidate.
+    let (mut at, mut cand_at) = (vec![(0.0, 0.0); n], vec![(0.0, 0.0); n]);
+    let mut best = loss(cols, t, w, offset, &x, &mut at);
     for _ in 0..GN_ITERATIONS {
         // Linearised at x: minimise sum w (r_i + J_i (y - x))^2 over y >= 0, i.e. the NNLS with
         // right-hand side J_i . x - r_i.
         let (a, rhs) = normal_equations(n, |i| {
-            let f: f64 = off(i) + (0..N).map(|p| x[p] * cols[p][i]).sum::<f64>();
-            let d = 1.0 + f;
+            let (d, res) = at[i];
             let j: [f64; N] = std::array::from_fn(|p| cols[p][i] / d);
-            let res = d.ln() - t[i];
             let jx: f64 = (0..N).map(|p| j[p] * x[p]).sum();
             (j, jx - res, w[i])
         });
         let y = nnls(&a, &rhs);
         let mut step = 1.0;
-        let mut improved = false;
+        let mut keep_going = false;
         while step > 1e-4 {
             let cand: [f64; N] = std::array::from_fn(|p| (x[p] + step * (y[p] - x[p])).max(0.0));
-            let l = loss(cols, t, w, offset, &cand);
+            let l = loss(cols, t, w, offset, &cand, &mut cand_at);
             if l < best {
-                (x, best, improved) = (cand, l, true);
+                keep_going = best - l > GN_TOLERANCE * best;
+                (x, best) = (cand, l);
+                std::mem::swap(&mut at, &mut cand_at);
                 break;
             }
             step *= 0.5;
         }
-        if !improved {
+        if !keep_going {
             break;
         }
     }
@@ -84,10 +105,17 @@ fn normal_equations<const N: usize>(
     for i in 0..n {
         let (j, y, wi) = jac(i);
         for p in 0..N {
-            r[p] += wi * j[p] * y;
-            for q in 0..N {
-                a[p][q] += wi * j[p] * j[q];
+            let wj = wi * j[p];
+            r[p] += wj * y;
+            for q in p..N {
+                a[p][q] += wj * j[q];
             }
+        }
+    }
+    // Symmetric: the lower triangle mirrors the upper one.
+    for p in 0..N {
+        for q in 0..p {
+            a[p][q] = a[q][p];
         }
     }
     (a, r)
@@ -111,16 +139,21 @@ fn nnls<const N: usize>(a: &[[f64; N]; N], r: &[f64; N]) -> [f64; N] {
     };
     let mut best = ([0.0; N], 0.0);
     for mask in 1usize..(1 << N) {
-        let free: Vec<usize> = (0..N).filter(|&p| mask & (1 << p) != 0).collect();
-        let Some(sol) = solve_block(a, r, &free) else {
+        let mut free = [0usize; N];
+        let mut k = 0;
+        for p in (0..N).filter(|&p| mask & (1 << p) != 0) {
+            free[k] = p;
+            k += 1;
+        }
+        let Some(sol) = solve_block(a, r, &free[..k]) else {
             continue;
         };
-        if sol.iter().any(|&v| !(v >= 0.0)) {
+        if sol[..k].iter().any(|&v| !(v >= 0.0)) {
             continue;
         }
         let mut x = [0.0; N];
-        for (k, &p) in free.iter().enumerate() {
-            x[p] = sol[k];
+        for (&p, &v) in free[..k].iter().zip(&sol) {
+            x[p] = v;
         }
         let o = objective(&x);
         if o < best.1 {
@@ -130,17 +163,17 @@ fn nnls<const N: usize>(a: &[[f64; N]; N], r: &[f64; N]) -> [f64; N] {
     best.0
 }
 
-/// Solve A[free, free] y = r[free] by Gaussian elimination with partial pivoting; None if singular.
-fn solve_block<const N: usize>(a: &[[f64; N]; N], r: &[f64; N], free: &[usize]) -> Option<Vec<f64>> {
+/// Solve A[free, free] y = r[free] by Gaussian elimination with partial pivoting (y's first
+/// `free.len()` entries); None if singular. On the stack: it runs 2^N - 1 times per NNLS.
+fn solve_block<const N: usize>(a: &[[f64; N]; N], r: &[f64; N], free: &[usize]) -> Option<[f64; N]> {
     let k = free.len();
-    let mut m: Vec<Vec<f64>> = free
-        .iter()
-        .map(|&p| {
-            let mut row: Vec<f64> = free.iter().map(|&q| a[p][q]).collect();
-            row.push(r[p]);
-            row
-        })
-        .collect();
+    let (mut m, mut rhs) = ([[0.0; N]; N], [0.0; N]);
+    for (row, &p) in free.iter().enumerate() {
+        for (col, &q) in free.iter().enumerate() {
+            m[row][col] = a[p][q];
+        }
+        rhs[row] = r[p];
+    }
     let scale = free.iter().map(|&p| a[p][p].abs()).fold(0.0, f64::max);
     for col in 0..k {
         let piv = (col..k).max_by(|&i, &j| m[i][col].abs().total_cmp(&m[j][col].abs()))?;
@@ -148,18 +181,20 @@ fn solve_block<const N: usize>(a: &[[f64; N]; N], r: &[f64; N], free: &[usize]) 
             return None;
         }
         m.swap(col, piv);
-        let pivot_row = m[col].clone();
-        for row in m.iter_mut().skip(col + 1) {
-            let f = row[col] / pivot_row[col];
-            for (x, p) in row.iter_mut().zip(&pivot_row).skip(col) {
-                *x -= f * p;
+        rhs.swap(col, piv);
+        let pivot_row = m[col];
+        for row in col + 1..k {
+            let f = m[row][col] / pivot_row[col];
+            for c in col..k {
+                m[row][c] -= f * pivot_row[c];
             }
+            rhs[row] -= f * rhs[col];
         }
     }
-    let mut y = vec![0.0; k];
+    let mut y = [0.0; N];
     for row in (0..k).rev() {
         let s: f64 = (row + 1..k).map(|c| m[row][c] * y[c]).sum();
-        y[row] = (m[row][k] - s) / m[row][row];
+        y[row] = (rhs[row] - s) / m[row][row];
     }
     Some(y)
 }
@@ -177,5 +212,33 @@ mod tests {
         let a = [[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 2.0]];
         let x = nnls(&a, &[2.0, 2.0, 2.0]);
         assert!((x[0] + x[1] - 2.0).abs() < 1e-12 && (x[2] - 1.0).abs() < 1e-12, "{x:?}");
+    }
+
+    #[test]
+    fn a_solve_recovers_exact_coefficients_and_the_cap_pins_the_first() {
+        // Three columns over 200 samples, values made by x = [0.3, 0, 2.0]: the log loss is zero there.
+        let n = 200;
+        let col = |k: usize| -> Vec<f64> {
+            (0..n)
+                .map(|i| {
+                    let u = i as f64 / n as f64;
+                    [0.3 + u, (-20.0 * (u - 0.5).powi(2)).exp(), u * u][k]
+                })
+                .collect()
+        };
+        let (c0, c1, c2) = (col(0), col(1), col(2));
+        let cols = [&c0[..], &c1[..], &c2[..]];
+        let truth = [0.3, 0.0, 2.0];
+        let t: Vec<f64> = (0..n).map(|i| model_at(&cols, &[], &truth, i).ln_1p()).collect();
+        let w = vec![1.0; n];
+        let (x, l) = solve_capped(&cols, &t, &w, f64::INFINITY);
+        assert!(l < 1e-20, "loss {l}");
+        for (got, want) in x.iter().zip(truth) {
+            assert!((got - want).abs() < 1e-8, "{x:?}");
+        }
+        // A cap below the truth's first coefficient holds it there; the others still fit, with a loss.
+        let (x, l) = solve_capped(&cols, &t, &w, 0.1);
+        assert_eq!(x[0], 0.1);
+        assert!(l > 0.0 && l.is_finite() && x.iter().all(|v| *v >= 0.0), "{x:?} {l}");
     }
 }
