@@ -113,9 +113,10 @@ fn normal_equations<const N: usize>(
         }
     }
     // Symmetric: the lower triangle mirrors the upper one.
-    for p in 0..N {
-        for q in 0..p {
-            a[p][q] = a[q][p];
+    let upper = a;
+    for (p, row) in a.iter_mut().enumerate() {
+        for (q, v) in row.iter_mut().enumerate().take(p) {
+            *v = upper[q][p];
         }
     }
     (a, r)
