@@ -79,6 +79,10 @@ pub struct MeasurementGrid {
     values: Vec<DVec3>,
     valid: Vec<bool>,
     slices: Vec<SliceWarp>,
+    /// Per node, a guide value the interpolation compares with the query's (`set_guide`); empty: none.
+    guide: Vec<f64>,
+    /// Width of the guide's Gaussian weight.
+    guide_width: f64,
 }
 
 impl MeasurementGrid {
@@ -126,7 +130,18 @@ impl MeasurementGrid {
             values,
             valid,
             slices,
+            guide: Vec::new(),
+            guide_width: 1.0,
         })
+    }
+
+    /// Give each node (index (k M + j) N + i) a guide value: a guided lookup then weighs each of
+    /// the four nodes around the query by exp(-((g_query - g_node) / width)^2) on top of bilinear.
+    /// A non-finite node guide weighs 1. Panics if `guide` has not one value per node.
+    pub fn set_guide(&mut self, guide: Vec<f64>, width: f64) {
+        assert_eq!(guide.len(), self.values.len(), "one guide value per node");
+        self.guide = guide;
+        self.guide_width = width;
     }
 
     fn index(&self, k: usize, i: usize, j: usize) -> usize {
@@ -205,8 +220,9 @@ impl MeasurementGrid {
         self.valid[idx].then(|| self.values[idx])
     }
 
-    /// Bilinear in u within slice k, over the valid nodes only; `None` if none of the four is valid.
-    fn bilinear(&self, k: usize, u: DVec2) -> Option<DVec3> {
+    /// Bilinear in u within slice k, over the valid nodes only, each node also weighed by its guide
+    /// against `guide` when both are set; `None` if none of the four is valid.
+    fn bilinear(&self, k: usize, u: DVec2, guide: Option<f64>) -> Option<DVec3> {
         let x = self.layout.ring_coordinate(u.x, self.n);
         let i0 = (x.floor() as usize).min(self.n - 2);
         let fx = x - i0 as f64;
@@ -214,23 +230,35 @@ impl MeasurementGrid {
         let j0 = (y.floor() as usize).min(self.m - 1);
         let fy = azimuth_weight(y - j0 as f64, self.m);
         let j1 = (j0 + 1) % self.m;
+        let guided = |idx: usize| match (guide, self.guide.get(idx)) {
+            (Some(q), Some(&g)) if q.is_finite() && g.is_finite() => (-((q - g) / self.guide_width).powi(2)).exp(),
+            _ => 1.0,
+        };
         let (mut acc, mut wsum) = (DVec3::ZERO, 0.0);
+        let (mut plain, mut plain_sum) = (DVec3::ZERO, 0.0);
         for (i, wx) in [(i0, 1.0 - fx), (i0 + 1, fx)] {
             for (j, wy) in [(j0, 1.0 - fy), (j1, fy)] {
                 let idx = self.index(k, i, j);
                 if self.valid[idx] && wx * wy > 0.0 {
-                    acc += wx * wy * self.values[idx];
-                    wsum += wx * wy;
+                    let w = wx * wy * guided(idx);
+                    acc += w * self.values[idx];
+                    wsum += w;
+                    plain += wx * wy * self.values[idx];
+                    plain_sum += wx * wy;
                 }
             }
         }
-        (wsum > 0.0).then(|| acc / wsum)
+        // Guard: guide weights that all underflow leave plain bilinear.
+        if wsum > 1e-300 {
+            return Some(acc / wsum);
+        }
+        (plain_sum > 0.0).then(|| plain / plain_sum)
     }
 
     /// The value of slice k at wo (already rotated to phi_i = 0), if the slice can map wo back.
-    fn slice_value(&self, k: usize, wo: DVec3) -> Option<DVec3> {
+    fn slice_value(&self, k: usize, wo: DVec3, guide: Option<f64>) -> Option<DVec3> {
         let u = self.slices[k].invert(wo)?;
-        self.bilinear(k, u)
+        self.bilinear(k, u, guide)
     }
 }
 
@@ -251,26 +279,28 @@ impl MeasurementGrid {
     /// `eval` with another u lookup per slice (the planner's lookup through the query's own wi, as
     /// RGL's files do); `eval` itself maps wo through slice k's own warp.
     pub fn eval_with_lookup(&self, wi: DVec3, wo: DVec3, u_of: &SliceLookup<'_>) -> DVec3 {
+        self.eval_guided(wi, wo, Some(u_of), None)
+    }
+
+    /// `eval` (`u_of` None) or `eval_with_lookup`, the interpolation guided by the query's `guide`
+    /// (`set_guide`; None: plain bilinear).
+    pub fn eval_guided(&self, wi: DVec3, wo: DVec3, u_of: Option<&SliceLookup<'_>>, guide: Option<f64>) -> DVec3 {
         if wi.z <= 0.0 || wo.z <= 0.0 {
             return DVec3::ZERO;
         }
         let phi_i = phi_of(wi);
         let wi_local = rotate_z(wi, -phi_i);
         let wo = rotate_z(wo, -phi_i);
-        self.eval_local(theta_of(wi), &|k: usize| {
-            u_of(k, wi_local, wo).and_then(|u| self.bilinear(k, u))
+        self.eval_local(theta_of(wi), &|k: usize| match u_of {
+            Some(u_of) => u_of(k, wi_local, wo).and_then(|u| self.bilinear(k, u, guide)),
+            None => self.slice_value(k, wo, guide),
         })
     }
 }
 
 impl Material for MeasurementGrid {
     fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
-        if wi.z <= 0.0 || wo.z <= 0.0 {
-            return DVec3::ZERO;
-        }
-        let phi_i = phi_of(wi);
-        let wo = rotate_z(wo, -phi_i);
-        self.eval_local(theta_of(wi), &|k: usize| self.slice_value(k, wo))
+        self.eval_guided(wi, wo, None, None)
     }
 }
 
@@ -385,7 +415,7 @@ mod tests {
             let uy = step as f64 / 16.0;
             let c = (std::f64::consts::TAU * uy).cos();
             let want = r0 * 0.5 * (1.0 + c) + r1 * 0.5 * (1.0 - c);
-            let got = grid.bilinear(0, DVec2::new(0.0, uy)).expect("valid nodes");
+            let got = grid.bilinear(0, DVec2::new(0.0, uy), None).expect("valid nodes");
             assert!((got - want).abs().max_element() < 1e-12, "u.y {uy}: {got} vs {want}");
         }
         let mut grid = empty(WarpKind::Cosine, vec![0.0], 2, 4).expect("grid");
@@ -394,12 +424,49 @@ mod tests {
                 grid.set_node(0, i, j, Some(if j == 0 { r0 } else { r1 }));
             }
         }
-        let mid = grid.bilinear(0, DVec2::new(0.0, 0.125)).expect("valid nodes");
+        let mid = grid.bilinear(0, DVec2::new(0.0, 0.125), None).expect("valid nodes");
         assert!((mid - 0.5 * (r0 + r1)).abs().max_element() < 1e-12, "{mid}");
-        let quarter = grid.bilinear(0, DVec2::new(0.0, 0.0625)).expect("valid nodes");
+        let quarter = grid.bilinear(0, DVec2::new(0.0, 0.0625), None).expect("valid nodes");
         assert!(
             (quarter - (0.75 * r0 + 0.25 * r1)).abs().max_element() < 1e-12,
             "{quarter}"
+        );
+    }
+
+    /// A guided lookup leans toward the nodes whose guide matches the query's: halfway between a
+    /// node of guide 0 and one of guide 3, a query of guide 0 reads (almost) the first; without a
+    /// query guide, or without node guides, it is plain bilinear; at a node it is that node's value
+    /// whatever the guides; guides that all underflow fall back to bilinear.
+    #[test]
+    fn a_guided_lookup_leans_toward_nodes_of_a_similar_guide() {
+        let (a, b) = (DVec3::splat(-1.0), DVec3::splat(2.0));
+        let mut grid = empty(WarpKind::Cosine, vec![0.0], 2, 4).expect("grid");
+        for j in 0..4 {
+            grid.set_node(0, 0, j, Some(a));
+            grid.set_node(0, 1, j, Some(b));
+        }
+        let mid = DVec2::new(0.25, 0.0);
+        let plain = 0.5 * (a + b);
+        assert!((grid.bilinear(0, mid, Some(0.0)).unwrap() - plain).abs().max_element() < 1e-12);
+        let guide: Vec<f64> = (0..8).map(|idx| if idx % 2 == 0 { 0.0 } else { 3.0 }).collect();
+        grid.set_guide(guide, 1.0);
+        assert!((grid.bilinear(0, mid, None).unwrap() - plain).abs().max_element() < 1e-12);
+        let w = (-9.0f64).exp();
+        let want = (a + w * b) / (1.0 + w);
+        let got = grid.bilinear(0, mid, Some(0.0)).unwrap();
+        assert!((got - want).abs().max_element() < 1e-12, "{got} vs {want}");
+        assert!(
+            (grid.bilinear(0, mid, Some(3.0)).unwrap() - (w * a + b) / (1.0 + w))
+                .abs()
+                .max_element()
+                < 1e-12
+        );
+        assert_eq!(grid.bilinear(0, DVec2::new(0.5, 0.0), Some(0.0)).unwrap(), b);
+        assert!(
+            (grid.bilinear(0, mid, Some(1e200)).unwrap() - plain)
+                .abs()
+                .max_element()
+                < 1e-12
         );
     }
 

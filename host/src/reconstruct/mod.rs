@@ -63,6 +63,16 @@ fn inverse(v: DVec3) -> DVec3 {
     v.map(|x| x.exp() - RATIO_FLOOR)
 }
 
+/// Width (in ln f) of the residual lookup's guide: each of the four nodes around a query weighs
+/// exp(-((ln prior at the query - ln prior at the node) / width)^2) on top of bilinear, so a lobe's
+/// misfit at its flank does not spill onto a shoulder the prior already fits (docs/planner.md).
+pub const GUIDE_WIDTH: f64 = 1.0;
+
+/// The guide value of a prior's value: the mean of its channels in the interpolated space.
+fn guide_of(prior: DVec3) -> f64 {
+    forward(prior).element_sum() / 3.0
+}
+
 /// Whether a level of `n` rings laid out as `layout` keeps its residual grid on top of a fitted
 /// prior: not the first level of a lobe-following plan, which is the fit alone (docs/planner.md).
 pub fn level_keeps_residual(layout: NodeLayout, n: usize) -> bool {
@@ -136,6 +146,16 @@ pub fn reconstruct_with(
         }
     }
     grid.fill_from_nearest();
+    if let (Some(p), true) = (&fitted, residual) {
+        let guide = (0..nodes.thetas.len())
+            .flat_map(|k| (0..nodes.m).flat_map(move |j| (0..nodes.n).map(move |i| (k, i, j))))
+            .map(|(k, i, j)| {
+                grid.node_directions(k, i, j)
+                    .map_or(f64::NAN, |(wi, wo)| guide_of(p.eval(wi, wo)))
+            })
+            .collect();
+        grid.set_guide(guide, GUIDE_WIDTH);
+    }
     Ok(Reconstruction {
         grid,
         slices: nodes.slices.to_vec(),
@@ -203,16 +223,15 @@ impl Reconstruction {
     /// were placed; far from the lobe the re-centred warp maps grazing back-scatter into a sliver
     /// of u). The fitted lobes' share of the prior at (wi, wo) weighs the first, the rest of f the
     /// second; a basis prior, which has no lobes to follow, keeps the first (docs/planner.md).
-    fn residual(&self, wi: DVec3, wo: DVec3) -> DVec3 {
+    fn residual(&self, wi: DVec3, wo: DVec3, guide: Option<f64>) -> DVec3 {
         if !self.slices.iter().any(|s| matches!(s, SliceWarp::Mixture(_))) {
-            return self.grid.eval(wi, wo);
+            return self.grid.eval_guided(wi, wo, None, guide);
         }
-        let query = self
-            .grid
-            .eval_with_lookup(wi, wo, &|k, wi, wo| match self.slices.get(k)? {
-                SliceWarp::Mixture(m) => m.invert_from(wi, wo),
-                other => other.invert(wo),
-            });
+        let lookup = |k: usize, wi: DVec3, wo: DVec3| match self.slices.get(k)? {
+            SliceWarp::Mixture(m) => m.invert_from(wi, wo),
+            other => other.invert(wo),
+        };
+        let query = self.grid.eval_guided(wi, wo, Some(&lookup), guide);
         let share = match &self.prior {
             Some(FittedPrior::TwoLobes(t)) => t.lobe_share(wi, wo),
             _ => 1.0,
@@ -220,17 +239,20 @@ impl Reconstruction {
         if share >= 1.0 {
             return query;
         }
-        share * query + (1.0 - share) * self.grid.eval(wi, wo)
+        share * query + (1.0 - share) * self.grid.eval_guided(wi, wo, None, guide)
     }
 }
 
 impl Material for Reconstruction {
     fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
-        let v = self.residual(wi, wo);
-        let base = match &self.prior {
-            Some(p) => forward(p.eval(wi, wo)),
-            None => DVec3::ZERO,
+        let (base, guide) = match &self.prior {
+            Some(p) => {
+                let f = p.eval(wi, wo);
+                (forward(f), Some(guide_of(f)))
+            }
+            None => (DVec3::ZERO, None),
         };
+        let v = self.residual(wi, wo, guide);
         // Guard: a residual from a node where the prior overshoots can take the sum below 0.
         inverse(base + v).max(DVec3::ZERO)
     }

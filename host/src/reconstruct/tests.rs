@@ -197,23 +197,67 @@ fn the_residual_lookup_follows_the_lobes_share() {
         "the lookups must differ here: {query} {own}"
     );
     assert_eq!(
-        rec(lobes(0.0, 1.0)).residual(wi, wo),
+        rec(lobes(0.0, 1.0)).residual(wi, wo, None),
         query,
         "all lobes: the query lookup"
     );
     assert_eq!(
-        rec(lobes(0.5, 0.0)).residual(wi, wo),
+        rec(lobes(0.5, 0.0)).residual(wi, wo, None),
         own,
         "no lobe: the slice's own warp"
     );
     let mixed = lobes(0.5, 1.0);
     let s = mixed.lobe_share(wi, wo);
     assert!(s > 0.0 && s < 1.0, "{s}");
-    let v = rec(mixed).residual(wi, wo);
+    let v = rec(mixed).residual(wi, wo, None);
     assert!((v - (s * query + (1.0 - s) * own)).abs().max_element() < 1e-12, "{v}");
     // Uniform slices: one lookup, whatever the prior.
     let uniform = Uniform2x2::new(vec![0.2, 0.8]);
     let values = vec![DVec3::splat(0.3); uniform.measured.len()];
     let r = reconstruct_with(&uniform, 1, &values, &TwoLobesPrior).expect("reconstruct");
-    assert_eq!(r.residual(wi, wo), r.grid().eval(wi, wo));
+    assert_eq!(r.residual(wi, wo, None), r.grid().eval(wi, wo));
+}
+
+/// The reconstruction guides its residual lookup by the prior (`GUIDE_WIDTH`): between nodes whose
+/// priors differ it departs from the plain bilinear lookup, and at the nodes it still returns
+/// each measurement.
+#[test]
+fn the_reconstruction_guides_its_lookup_by_the_prior() {
+    let level = Uniform2x2::new(vec![0.0, 0.6, 1.2]);
+    let truth = Ggx {
+        alpha: 0.15,
+        diffuse: DVec3::new(0.3, 0.2, 0.1),
+        specular: DVec3::ONE,
+    };
+    // A misfit the prior cannot follow: one node 3x too dark.
+    let values: Vec<DVec3> = level
+        .measured
+        .iter()
+        .enumerate()
+        .map(|(d, &(_, wi, wo))| truth.eval(wi, wo) * if d == 5 { 0.3 } else { 1.0 })
+        .collect();
+    let rec = reconstruct_with(&level, 1, &values, &TwoLobesPrior).expect("rec");
+    let prior = rec.prior().expect("fitted").clone();
+    let plain = |wi: DVec3, wo: DVec3| inverse(forward(prior.eval(wi, wo)) + rec.grid().eval(wi, wo)).max(DVec3::ZERO);
+    let mut departs = 0.0f64;
+    for t in 1..12 {
+        let (wi, wo) = (
+            from_spherical(0.3, 0.0),
+            from_spherical(0.1 * t as f64, 0.5 + 0.2 * t as f64),
+        );
+        let (g, p) = (rec.eval(wi, wo), plain(wi, wo));
+        assert!(g.is_finite() && g.min_element() >= 0.0, "{g}");
+        departs = departs.max(((g - p).abs() / (p + DVec3::splat(1e-3))).max_element());
+    }
+    assert!(
+        departs > 1e-3,
+        "the guided lookup never departs from bilinear: {departs}"
+    );
+    for (&(_, wi, wo), v) in level.measured.iter().zip(&values) {
+        let r = rec.eval(wi, wo);
+        assert!(
+            (r - *v).abs().max_element() < 1e-9 * (1.0 + v.max_element()),
+            "{r} vs {v}"
+        );
+    }
 }
