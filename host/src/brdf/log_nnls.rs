@@ -6,10 +6,16 @@ const GN_ITERATIONS: usize = 12;
 /// steps barely move the fit (tested below) and cost most of a level's host time (docs/scan.md).
 const GN_TOLERANCE: f64 = 1e-9;
 
+/// The offset at sample i (`offset` empty: none, 0).
+#[inline(always)]
+fn offset_at(offset: &[f64], i: usize) -> f64 {
+    offset.get(i).copied().unwrap_or(0.0)
+}
+
 /// The model's f cos = offset + sum x_p cols_p at sample i (`offset` empty: none).
 #[inline(always)]
 fn model_at<const N: usize>(cols: &[&[f64]; N], offset: &[f64], x: &[f64; N], i: usize) -> f64 {
-    offset.get(i).copied().unwrap_or(0.0) + (0..N).map(|p| x[p] * cols[p][i]).sum::<f64>()
+    offset_at(offset, i) + (0..N).map(|p| x[p] * cols[p][i]).sum::<f64>()
 }
 
 /// Weighted sum of squared log residuals of coefficients `x` on columns `cols` (already times cos),
@@ -67,9 +73,12 @@ fn solve_channel_to<const N: usize>(
     tolerance: f64,
 ) -> ([f64; N], f64) {
     let n = t.len();
-    let off = |i: usize| offset.get(i).copied().unwrap_or(0.0);
     let (a, r) = normal_equations(n, |i| {
-        (std::array::from_fn(|p| cols[p][i]), t[i].exp_m1() - off(i), w[i])
+        (
+            std::array::from_fn(|p| cols[p][i]),
+            t[i].exp_m1() - offset_at(offset, i),
+            w[i],
+        )
     });
     let mut x = nnls(&a, &r);
     // (1 + f cos, log residual) of each sample at x, and at a candidate.
