@@ -235,7 +235,6 @@ impl MeasurementGrid {
             _ => 1.0,
         };
         let (mut acc, mut wsum) = (DVec3::ZERO, 0.0);
-        let (mut plain, mut plain_sum) = (DVec3::ZERO, 0.0);
         for (i, wx) in [(i0, 1.0 - fx), (i0 + 1, fx)] {
             for (j, wy) in [(j0, 1.0 - fy), (j1, fy)] {
                 let idx = self.index(k, i, j);
@@ -243,16 +242,14 @@ impl MeasurementGrid {
                     let w = wx * wy * guided(idx);
                     acc += w * self.values[idx];
                     wsum += w;
-                    plain += wx * wy * self.values[idx];
-                    plain_sum += wx * wy;
                 }
             }
         }
         // Guard: guide weights that all underflow leave plain bilinear.
-        if wsum > 1e-300 {
-            return Some(acc / wsum);
+        if wsum <= 1e-300 && guide.is_some() {
+            return self.bilinear(k, u, None);
         }
-        (plain_sum > 0.0).then(|| plain / plain_sum)
+        (wsum > 0.0).then(|| acc / wsum)
     }
 
     /// The value of slice k at wo (already rotated to phi_i = 0), if the slice can map wo back.
@@ -276,14 +273,9 @@ fn azimuth_weight(f: f64, m: usize) -> f64 {
 pub type SliceLookup<'a> = dyn Fn(usize, DVec3, DVec3) -> Option<DVec2> + 'a;
 
 impl MeasurementGrid {
-    /// `eval` with another u lookup per slice (the planner's lookup through the query's own wi, as
-    /// RGL's files do); `eval` itself maps wo through slice k's own warp.
-    pub fn eval_with_lookup(&self, wi: DVec3, wo: DVec3, u_of: &SliceLookup<'_>) -> DVec3 {
-        self.eval_guided(wi, wo, Some(u_of), None)
-    }
-
-    /// `eval` (`u_of` None) or `eval_with_lookup`, the interpolation guided by the query's `guide`
-    /// (`set_guide`; None: plain bilinear).
+    /// `eval` with slice k's u found by `u_of` (None: through slice k's own warp, as `eval`; the
+    /// planner's lookup through the query's own wi, as RGL's files do, otherwise), the
+    /// interpolation guided by the query's `guide` (`set_guide`; None: plain bilinear).
     pub fn eval_guided(&self, wi: DVec3, wo: DVec3, u_of: Option<&SliceLookup<'_>>, guide: Option<f64>) -> DVec3 {
         if wi.z <= 0.0 || wo.z <= 0.0 {
             return DVec3::ZERO;
