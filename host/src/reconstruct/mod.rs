@@ -50,6 +50,54 @@ pub trait Levels {
     fn level_nodes(&self, level: usize) -> Option<LevelNodes<'_>>;
 }
 
+impl<'a> LevelNodes<'a> {
+    /// The level with only the measurements `keep` accepts (by measurement index), the others read
+    /// as unmeasured, and their values: what a scan that skipped them would have reconstructed from.
+    pub fn subset(&self, values: &[DVec3], keep: impl Fn(usize) -> bool) -> (LevelNodes<'a>, Vec<DVec3>) {
+        let mut index = vec![None; self.measured.len()];
+        let (mut measured, mut kept) = (Vec::new(), Vec::new());
+        for (d, m) in self.measured.iter().enumerate() {
+            if keep(d) {
+                if let Some(&v) = values.get(d) {
+                    index[d] = Some(measured.len());
+                    measured.push(*m);
+                    kept.push(v);
+                }
+            }
+        }
+        let node_measurement = self
+            .node_measurement
+            .iter()
+            .map(|d| d.and_then(|d| index.get(d).copied().flatten()))
+            .collect();
+        (
+            LevelNodes {
+                slices: self.slices,
+                thetas: self.thetas,
+                layout: self.layout,
+                n: self.n,
+                m: self.m,
+                node_measurement,
+                measured,
+                estimate_alpha: self.estimate_alpha,
+            },
+            kept,
+        )
+    }
+}
+
+/// One level standing alone (a subset of a measured one) as `Levels` reads it.
+pub struct SingleLevel<'a> {
+    pub level: usize,
+    pub nodes: LevelNodes<'a>,
+}
+
+impl Levels for SingleLevel<'_> {
+    fn level_nodes(&self, level: usize) -> Option<LevelNodes<'_>> {
+        (level == self.level).then(|| self.nodes.clone())
+    }
+}
+
 /// Floor (sr^-1) of the ratio residual: ln(f + RATIO_FLOOR) guards the log and ignores noise-sized ratios.
 pub const RATIO_FLOOR: f64 = 1e-3;
 

@@ -89,6 +89,36 @@ fn only_the_far_ring_first_level_is_the_fit_alone() {
     assert!(level_keeps_residual(NodeLayout::Nested, 2));
 }
 
+/// A subset keeps the accepted measurements in order, renumbered, with their own values; the
+/// nodes of the others read as unmeasured, and the subset reconstructs (a skipped node is filled).
+#[test]
+fn a_subset_keeps_its_measurements_renumbered_and_reconstructs() {
+    let level = Uniform2x2::new(vec![0.0, 0.6, 1.2]);
+    let values: Vec<DVec3> = (0..level.measured.len())
+        .map(|d| DVec3::splat(0.1 + d as f64))
+        .collect();
+    let nodes = level.level_nodes(1).expect("level");
+    let (half, kept) = nodes.subset(&values, |d| d % 2 == 1);
+    assert_eq!(half.measured.len(), 6);
+    assert_eq!(kept, (0..6).map(|i| values[2 * i + 1]).collect::<Vec<_>>());
+    for (node, d) in half.node_measurement.iter().enumerate() {
+        // Node `node` was measurement `node` in the full level.
+        assert_eq!(*d, (node % 2 == 1).then_some(node / 2), "node {node}");
+    }
+    assert_eq!(half.measured[2], nodes.measured[5]);
+    let rec = reconstruct_with(&SingleLevel { level: 1, nodes: half }, 1, &kept, &NoPrior).expect("rec");
+    for (d, &(_, wi, wo)) in level.measured.iter().enumerate().filter(|(d, _)| d % 2 == 1) {
+        assert!(
+            (rec.eval(wi, wo) - values[d]).abs().max_element() < 1e-9,
+            "measurement {d}"
+        );
+    }
+    assert!(rec.eval(level.measured[0].1, level.measured[0].2).is_finite());
+    // Nothing kept: an empty subset.
+    let (none, v) = nodes.subset(&values, |_| false);
+    assert!(none.measured.is_empty() && v.is_empty() && none.node_measurement.iter().all(Option::is_none));
+}
+
 /// At every node the reconstruction returns its measurement, with a prior and without.
 #[test]
 fn a_node_returns_its_measurement() {

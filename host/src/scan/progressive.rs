@@ -115,7 +115,8 @@ pub fn levels_markdown(levels: &[LevelAssessment], stop_reason: &str, rule: &str
     let _ = writeln!(
         md,
         "Rule: {rule}. {stop_reason}. The estimate needs no ground truth: the FLIP between this level's and \
-         the previous level's capture renders times a ratio measured on training materials, with its 90% \
+         the previous level's capture renders (at level 1: between the renders from each half of its \
+         measurements and from all of them) times a ratio measured on training materials, with its 90% \
          interval (docs/scan.md, \"Closed loop\"); renders {} px. ![levels](levels.png)\n",
         crate::plan::closed_loop::ESTIMATE_SIZE
     );

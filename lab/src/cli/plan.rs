@@ -253,14 +253,19 @@ pub struct StopReplayArgs {
     /// The quantile of true / change FLIP used as the ratio (0.5: the product's rule).
     #[arg(long, default_value_t = 0.5)]
     pub quantile: f64,
+    /// The quantile of level 1's true / split change FLIP used as its ratio (0.9: the product's rule).
+    #[arg(long, default_value_t = 0.9)]
+    pub first_quantile: f64,
     /// Other runs' closed-loop.csv to replay on (the training run is replayed first).
     #[arg(value_name = "CSV")]
     pub runs: Vec<PathBuf>,
 }
 
 pub fn run_stop_replay(args: StopReplayArgs) -> Result<()> {
-    if !(args.quantile > 0.0 && args.quantile < 1.0) {
-        bail!("--quantile {} must be in (0, 1)", args.quantile);
+    for (name, q) in [("--quantile", args.quantile), ("--first-quantile", args.first_quantile)] {
+        if !(q > 0.0 && q < 1.0) {
+            bail!("{name} {q} must be in (0, 1)");
+        }
     }
     let read = |p: &PathBuf| tradeoff::closed_loop::read_rows(p).map(|rows| (p.display().to_string(), rows));
     let train = read(&args.train)?;
@@ -268,7 +273,7 @@ pub fn run_stop_replay(args: StopReplayArgs) -> Result<()> {
     for p in &args.runs {
         runs.push(read(p)?);
     }
-    let md = tradeoff::closed_loop::stop_replay(&train.1, &args.strategy, args.quantile, &runs)
+    let md = tradeoff::closed_loop::stop_replay(&train.1, &args.strategy, (args.quantile, args.first_quantile), &runs)
         .map_err(anyhow::Error::msg)?;
     print!("{md}");
     Ok(())

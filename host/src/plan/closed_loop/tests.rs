@@ -92,10 +92,30 @@ fn the_loop_stops_early_on_a_rough_material_and_goes_deeper_on_a_sharp_one() {
     );
 }
 
+/// Level 1 has its own estimate (its split change times `FIRST_FLIP_RATIO`), so a loose target
+/// stops there, and a target below it goes on.
+#[test]
+fn level_one_has_an_estimate_and_a_loose_target_stops_there() {
+    let m = "nbrdf:dark-red-paint";
+    let plan = plan_for(&estimate_for(m).expect("estimate"), 3);
+    let loose = simulate(&plan, m, StopRule::TargetFlip(0.2));
+    assert_eq!(loose.stop_level, 1, "{:?}", loose.levels);
+    let a = &loose.levels[0];
+    let (e, lo, hi) = a.est_flip.expect("level 1 estimate");
+    let change = a.change_flip.expect("split change");
+    assert!(change > 0.0 && change.is_finite(), "{a:?}");
+    assert!(
+        (e - change * FIRST_FLIP_RATIO).abs() < 1e-12 && lo < e && e < hi,
+        "{a:?}"
+    );
+    let tight = simulate(&plan, m, StopRule::TargetFlip(0.5 * e));
+    assert!(tight.stop_level > 1, "{:?}", tight.levels);
+}
+
 #[test]
 fn a_wrong_seed_still_converges() {
     // The photo said rough; the sample is sharp: the reconstruction must improve level after level
-    // (the loop never stops on the seed's word: level 1 has no estimate). Since the PCA prior,
+    // (every level measured: no stop rule). Since the PCA prior,
     // two-layer-silver (a training material) is close after level 1 already: true FLIP 0.017.
     let truth = "nbrdf:two-layer-silver";
     let plan = plan_for(&ggx_estimate(0.3, 0.2), 4);
@@ -127,10 +147,14 @@ fn degenerate_levels_give_finite_reconstructions_and_intervals() {
             &mut |_| {},
         )
         .expect(name);
-        for a in &closed.levels[1..] {
+        // Level 1 too: its estimate comes from its two halves.
+        for a in &closed.levels {
             let (e, lo, hi) = a.est_flip.expect("estimate");
             assert!(e.is_finite() && lo.is_finite() && hi.is_finite(), "{name}: {a:?}");
-            assert!(a.half_width.is_some_and(f64::is_finite), "{name}: {a:?}");
+            assert!(
+                a.level == 1 || a.half_width.is_some_and(f64::is_finite),
+                "{name}: {a:?}"
+            );
         }
         for &(wi, wo) in &fit_directions()[..50] {
             assert!(closed.reconstruction.eval(wi, wo).is_finite(), "{name}");

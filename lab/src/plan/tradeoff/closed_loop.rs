@@ -648,17 +648,35 @@ mod tests {
             })
             .collect();
         let runs = [("run".to_string(), rows.clone())];
-        let median = stop_replay(&rows, "adaptive", 0.5, &runs).unwrap();
+        let median = stop_replay(&rows, "adaptive", (0.5, 0.9), &runs).unwrap();
         assert!(median.contains("ratio (0.5 quantile) 0.500"), "{median}");
         assert!(median.contains("| run | 0.02 | 1 of 1 | 1.00, 1.00 | 0 |"), "{median}");
         assert!(median.contains("| run | 0.01 | 1 of 1 | 1.00, 1.00 | 0 |"), "{median}");
-        let cautious = stop_replay(&rows, "adaptive", 0.9, &runs).unwrap();
+        let cautious = stop_replay(&rows, "adaptive", (0.9, 0.9), &runs).unwrap();
         assert!(cautious.contains("ratio (0.9 quantile) 0.800"), "{cautious}");
         assert!(
             cautious.contains("| run | 0.02 | 1 of 1 | 1.50, 1.50 | 0 |"),
             "{cautious}"
         );
-        assert!(stop_replay(&rows, "uniform", 0.5, &runs).is_err());
+        assert!(stop_replay(&rows, "uniform", (0.5, 0.9), &runs).is_err());
+        // Level 1 with a split change has its own ratio (the median of 0.75 and 0.9 by nearest
+        // rank: 0.75): b stops at level 1 (estimate 0.015), its oracle, where without level 1's
+        // estimate it would stop at level 2 (time / oracle 2); a goes on (estimate 0.03).
+        let first = |m: &str, c: f64, t: f64| LoopRow {
+            change_flip: Some(c),
+            ..row(m, "adaptive", 1, t)
+        };
+        let mut two = rows.clone();
+        two[0] = first("a", 0.04, 0.03);
+        two.push(first("b", 0.02, 0.018));
+        two.extend(rows[1..].iter().map(|r| LoopRow {
+            material: "b".into(),
+            ..r.clone()
+        }));
+        let runs = [("run".to_string(), two.clone())];
+        let md = stop_replay(&two, "adaptive", (0.5, 0.5), &runs).unwrap();
+        assert!(md.contains("ratio (0.5 quantile) 0.750"), "{md}");
+        assert!(md.contains("| run | 0.02 | 2 of 2 | 1.00, 1.00 | 0 |"), "{md}");
     }
 
     /// The examples' preset names are the command line's; others are refused in one line.

@@ -38,12 +38,44 @@ pub fn replay(levels: &[&LoopRow], target: f64) -> Option<(f64, f64, Option<f64>
 pub fn with_current_constants(mut rows: Vec<LoopRow>) -> Vec<LoopRow> {
     for r in &mut rows {
         if let Some(d) = r.change_flip {
-            r.est_flip = Some(d * closed_loop::FLIP_RATIO);
-            r.est_lo = Some(d * closed_loop::FLIP_RATIO_LO);
-            r.est_hi = Some(d * closed_loop::FLIP_RATIO_HI);
+            let (m, lo, hi) = if r.level == 1 {
+                (
+                    closed_loop::FIRST_FLIP_RATIO,
+                    closed_loop::FIRST_FLIP_RATIO_LO,
+                    closed_loop::FIRST_FLIP_RATIO_HI,
+                )
+            } else {
+                (
+                    closed_loop::FLIP_RATIO,
+                    closed_loop::FLIP_RATIO_LO,
+                    closed_loop::FLIP_RATIO_HI,
+                )
+            };
+            r.est_flip = Some(d * m);
+            r.est_lo = Some(d * lo);
+            r.est_hi = Some(d * hi);
         }
     }
     rows
+}
+
+/// True / change FLIP of `rows` at level 1 (`first`: its split change) or at levels 2.. (the
+/// change between consecutive levels): the two estimators have their own ratios.
+fn ratios(rows: &[&LoopRow], first: bool) -> Vec<f64> {
+    rows.iter()
+        .filter(|r| (r.level == 1) == first)
+        .filter_map(|r| Some(r.true_flip? / r.change_flip?.max(1e-9)))
+        .collect()
+}
+
+/// Median, 5% and 95% quantiles of `v`, as the report prints them.
+fn quantiles(v: &[f64]) -> String {
+    format!(
+        "median {:.3}, 5% {:.3}, 95% {:.3}",
+        quantile(v.to_vec(), 0.5),
+        quantile(v.to_vec(), 0.05),
+        quantile(v.to_vec(), 0.95)
+    )
 }
 
 /// The targets the stop rule is replayed at (point FLIP).
@@ -73,33 +105,36 @@ fn stop_cells(rows: &[&LoopRow], target: f64) -> String {
     )
 }
 
-/// The stop rule on `strategy`'s rows of other runs, its ratio the `q` quantile of true / change
-/// FLIP over `train`'s rows of that strategy (a schedule with other level steps needs its own
-/// ratio; with the product's rows and q = 0.5 this is `FLIP_RATIO` and the reports' stop tables).
+/// The stop rule on `strategy`'s rows of other runs, its ratios the `q.0` quantile of true / change
+/// FLIP over `train`'s rows of that strategy at levels 2.. and the `q.1` quantile at level 1 (a
+/// schedule with other level steps needs its own ratio; with the product's rows and q = (0.5, 0.9)
+/// these are `FLIP_RATIO`, `FIRST_FLIP_RATIO` and the reports' stop tables).
 pub fn stop_replay(
     train: &[LoopRow],
     strategy: &str,
-    q: f64,
+    (q, q_first): (f64, f64),
     runs: &[(String, Vec<LoopRow>)],
 ) -> Result<String, String> {
     let of = |rows: &[LoopRow]| -> Vec<LoopRow> { rows.iter().filter(|r| r.strategy == strategy).cloned().collect() };
-    let ratios: Vec<f64> = of(train)
-        .iter()
-        .filter_map(|r| Some(r.true_flip? / r.change_flip?.max(1e-9)))
-        .collect();
-    if ratios.is_empty() {
+    let train = of(train);
+    let train: Vec<&LoopRow> = train.iter().collect();
+    let (later, first) = (ratios(&train, false), ratios(&train, true));
+    if later.is_empty() {
         return Err(format!(
             "the training rows have no level of strategy {strategy:?} with a change FLIP"
         ));
     }
-    let ratio = quantile(ratios.clone(), q);
+    let ratio = quantile(later.clone(), q);
+    // A level 1 without a split change (rows made before it existed) keeps no estimate.
+    let first_ratio = quantile(first.clone(), q_first);
     let mut md = format!(
-        "{strategy}: true / change FLIP over {} training levels: median {:.3}, 5% {:.3}, 95% {:.3}; the rule's ratio ({q} quantile) {ratio:.3}\n\n\
+        "{strategy}: true / change FLIP over {} training levels 2..: {}; the rule's ratio ({q} quantile) {ratio:.3}\n\n\
+         level 1 (split change) over {} training levels: {}; the rule's ratio ({q_first} quantile) {first_ratio:.3}\n\n\
          | run | target FLIP | scans meeting it at the stop level | time / oracle (geomean, max) | scans no level met |\n|---|---|---|---|---|\n",
-        ratios.len(),
-        quantile(ratios.clone(), 0.5),
-        quantile(ratios.clone(), 0.05),
-        quantile(ratios, 0.95)
+        later.len(),
+        quantiles(&later),
+        first.len(),
+        quantiles(&first),
     );
     for (name, rows) in runs {
         let mut mine = of(rows);
@@ -107,7 +142,8 @@ pub fn stop_replay(
             return Err(format!("{name}: no rows of strategy {strategy:?}"));
         }
         for r in &mut mine {
-            r.est_flip = r.change_flip.map(|d| d * ratio);
+            let k = if r.level == 1 { first_ratio } else { ratio };
+            r.est_flip = r.change_flip.map(|d| d * k).filter(|e| e.is_finite());
         }
         let refs: Vec<&LoopRow> = mine.iter().collect();
         for target in STOP_TARGETS {
@@ -123,21 +159,22 @@ pub fn summary(rows: &[LoopRow], title: &str, regenerate: &str) -> String {
     let mut md = String::new();
     let _ = writeln!(md, "# Closed loop: {title}\n\nRegenerate: `{regenerate}`\n");
     let adaptive: Vec<&LoopRow> = rows.iter().filter(|r| r.strategy == "adaptive").collect();
-    let ratio: Vec<f64> = adaptive
-        .iter()
-        .filter_map(|r| Some(r.true_flip? / r.change_flip?.max(1e-9)))
-        .collect();
+    let (later, first) = (ratios(&adaptive, false), ratios(&adaptive, true));
     let _ = writeln!(
         md,
-        "## Estimator\n\ntrue point FLIP / change FLIP over {} levels: median {:.3}, 5% {:.3}, 95% {:.3} \
+        "## Estimator\n\ntrue point FLIP / change FLIP over {} levels 2..: {} \
+         (product constants: {} [{}, {}]); level 1, true / split change over {} levels: {} \
          (product constants: {} [{}, {}]).\n",
-        ratio.len(),
-        quantile(ratio.clone(), 0.5),
-        quantile(ratio.clone(), 0.05),
-        quantile(ratio, 0.95),
+        later.len(),
+        quantiles(&later),
         closed_loop::FLIP_RATIO,
         closed_loop::FLIP_RATIO_LO,
-        closed_loop::FLIP_RATIO_HI
+        closed_loop::FLIP_RATIO_HI,
+        first.len(),
+        quantiles(&first),
+        closed_loop::FIRST_FLIP_RATIO,
+        closed_loop::FIRST_FLIP_RATIO_LO,
+        closed_loop::FIRST_FLIP_RATIO_HI
     );
     let inside = adaptive
         .iter()
