@@ -34,9 +34,9 @@ pub const FLIP_RATIO_HI: f64 = 1.189;
 /// Level 1 has no previous level; its change is the mean FLIP between the reconstructions from
 /// each half of its measurements (every other one, in measurement order) and from all of them.
 /// True point FLIP over that change on the 14 training materials (the same report, its level-1
-/// rows): the estimate takes the 90% quantile, not the median, because this ratio spreads wider
-/// than the levels' (the smallest quantile that loses no training scan's stop, docs/scan.md); the
-/// interval, the 5% and 95% quantiles.
+/// rows): the estimate takes the 90% quantile, not the median, since this ratio spreads wider than
+/// the levels' (the smallest quantile that loses no training scan's stop: docs/tradeoff/README.md,
+/// "A level-1 estimate from its two halves"); the interval, the 5% and 95% quantiles.
 pub const FIRST_FLIP_RATIO: f64 = 1.587;
 pub const FIRST_FLIP_RATIO_LO: f64 = 0.379;
 pub const FIRST_FLIP_RATIO_HI: f64 = 2.801;
