@@ -92,8 +92,8 @@ fn the_loop_stops_early_on_a_rough_material_and_goes_deeper_on_a_sharp_one() {
     );
 }
 
-/// Level 1 has its own estimate (its split change times `FIRST_FLIP_RATIO`), so a loose target
-/// stops there, and a target below it goes on.
+/// Level 1 has its own estimates (its split change's FLIP and PSNR with `FIRST_FLIP_RATIO` and
+/// `FIRST_RMSE_RATIO`), so a loose target stops there, and a target beyond it goes on.
 #[test]
 fn level_one_has_an_estimate_and_a_loose_target_stops_there() {
     let m = "nbrdf:dark-red-paint";
@@ -110,6 +110,14 @@ fn level_one_has_an_estimate_and_a_loose_target_stops_there() {
     );
     let tight = simulate(&plan, m, StopRule::TargetFlip(0.5 * e));
     assert!(tight.stop_level > 1, "{:?}", tight.levels);
+    // The PSNR estimate too: the split change's PSNR less 20 log10 of `FIRST_RMSE_RATIO`.
+    let (psnr, est) = (a.change_psnr.expect("split PSNR"), a.est_psnr.expect("level 1 PSNR"));
+    assert!(
+        psnr.is_finite() && (est - (psnr - 20.0 * FIRST_RMSE_RATIO.log10())).abs() < 1e-12,
+        "{a:?}"
+    );
+    assert_eq!(simulate(&plan, m, StopRule::TargetPsnr(est - 1.0)).stop_level, 1);
+    assert!(simulate(&plan, m, StopRule::TargetPsnr(est + 1.0)).stop_level > 1);
 }
 
 #[test]

@@ -93,6 +93,10 @@ pub struct LoopRow {
     /// The prior the level's reconstruction chose (`FittedPrior::kind`; absent in older csvs).
     #[serde(default)]
     pub prior: Option<String>,
+    /// PSNR (dB) between this level's and the previous level's capture renders, at level 1 its
+    /// split change's (sets `RMSE_RATIO` and `FIRST_RMSE_RATIO`; absent in older csvs).
+    #[serde(default)]
+    pub change_psnr: Option<f64>,
 }
 
 /// Side (px) of the environment render the report scores (the point render's `ESTIMATE_SIZE`).
@@ -251,6 +255,7 @@ fn rows_of(material: &str, strategy: &str, levels: &[Scored], uniform: &[usize])
             e_in: None,
             e_out: None,
             prior: Some(a.prior.to_string()),
+            change_psnr: a.change_psnr,
         })
         .collect()
 }
@@ -609,6 +614,7 @@ pub fn run(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use gonio::plan::closed_loop::StopRule;
 
     fn row(material: &str, strategy: &str, level: usize, error: f64) -> LoopRow {
         LoopRow {
@@ -632,6 +638,7 @@ mod tests {
             e_in: None,
             e_out: None,
             prior: Some(if level == 1 { "two-lobes" } else { "pca" }.into()),
+            change_psnr: None,
         }
     }
 
@@ -733,6 +740,67 @@ mod tests {
         ] {
             assert!(Trial::parse(bad).is_err(), "{bad}");
         }
+    }
+
+    /// The estimators' ratios are split by level (level 1's split change apart), and the PSNR
+    /// estimate's RMSE ratio is 10^((change - true PSNR) / 20) over the levels that have both.
+    #[test]
+    fn summary_reports_each_estimators_ratios() {
+        let rows = vec![
+            LoopRow {
+                change_flip: Some(0.01),
+                true_psnr: Some(30.0),
+                change_psnr: Some(50.0),
+                ..row("a", "adaptive", 1, 0.02)
+            },
+            LoopRow {
+                change_flip: Some(0.04),
+                true_psnr: Some(34.0),
+                change_psnr: Some(40.0),
+                ..row("a", "adaptive", 2, 0.01)
+            },
+        ];
+        let md = summary(&rows, "test", "cmd");
+        assert!(
+            md.contains("over 1 levels 2..: median 0.250, 5% 0.250, 95% 0.250"),
+            "{md}"
+        );
+        assert!(
+            md.contains("true / split change over 1 levels: median 2.000, 5% 2.000, 95% 2.000"),
+            "{md}"
+        );
+        assert!(md.contains("change RMSE over 1 levels 2..: median 1.995,"), "{md}");
+        assert!(md.contains("split change RMSE over 1 levels: median 10.000,"), "{md}");
+    }
+
+    /// A PSNR target stops at the first level whose estimate (from the change PSNR) meets it and is
+    /// judged on the true PSNR; a level without a change PSNR (level 1 of older csvs) never stops.
+    #[test]
+    fn a_psnr_target_is_replayed_on_the_change_psnr() {
+        let psnr = |level, change: Option<f64>, truth| LoopRow {
+            change_psnr: change,
+            true_psnr: Some(truth),
+            ..row("a", "adaptive", level, 0.01)
+        };
+        let rows = [
+            psnr(1, None, 46.0),
+            psnr(2, Some(80.0), 48.0),
+            psnr(3, Some(90.0), 52.0),
+        ];
+        let refs: Vec<&LoopRow> = rows.iter().collect();
+        // 45 dB: level 1 truly meets it but has no estimate; level 2's estimate stops there.
+        assert_eq!(
+            summary::replay(&refs, StopRule::TargetPsnr(45.0)),
+            Some((true, 12.0, Some(6.0)))
+        );
+        // 50 dB: level 2's estimate meets it, its truth does not; the oracle is level 3.
+        assert_eq!(
+            summary::replay(&refs, StopRule::TargetPsnr(50.0)),
+            Some((false, 12.0, Some(18.0)))
+        );
+        let md = summary(&rows, "test", "cmd");
+        assert!(md.contains("| 45 | 1 of 1 | 2.00, 2.00 | 0 |"), "{md}");
+        assert!(md.contains("| 50 | 0 of 1 | 0.67, 0.67 | 0 |"), "{md}");
     }
 
     /// A trial's rows get their own equal-directions table and monotonicity rows.

@@ -2,7 +2,7 @@
 //! calibration, stop-rule replays, errors, equal-directions ratios, monotonicity, the goal minutes.
 
 use super::{LoopRow, GOAL_MINUTES};
-use gonio::plan::closed_loop;
+use gonio::plan::closed_loop::{self, StopRule};
 use std::fmt::Write as _;
 
 /// The `q` quantile (0..1) of `v` (nearest rank); NaN for none.
@@ -21,16 +21,28 @@ fn geomean(v: &[f64]) -> f64 {
     (v.iter().map(|x| x.ln()).sum::<f64>() / v.len().max(1) as f64).exp()
 }
 
-/// Replay a target on one material's adaptive levels: (stop level's true FLIP, its minutes, the
-/// oracle's minutes: the first level whose true FLIP meets the target, if any).
-pub fn replay(levels: &[&LoopRow], target: f64) -> Option<(f64, f64, Option<f64>)> {
+/// Whether row `r` meets `rule`'s target by its estimate or, with `truth`, by its true error
+/// (the PSNR estimate from the recorded change PSNR, as the product derives it).
+fn meets(r: &LoopRow, rule: StopRule, truth: bool) -> bool {
+    match rule {
+        StopRule::TargetFlip(f) => if truth { r.true_flip } else { r.est_flip }.is_some_and(|e| e <= f),
+        StopRule::TargetPsnr(db) => if truth {
+            r.true_psnr
+        } else {
+            r.change_psnr.map(|c| closed_loop::estimated_psnr(r.level == 1, c))
+        }
+        .is_some_and(|e| e >= db),
+        StopRule::Depth | StopRule::TimeBudget(_) => false,
+    }
+}
+
+/// Replay a target on one material's adaptive levels: (whether the stop level truly meets it, its
+/// minutes, the oracle's minutes: the first level whose true error meets the target, if any).
+pub fn replay(levels: &[&LoopRow], rule: StopRule) -> Option<(bool, f64, Option<f64>)> {
     let last = levels.last()?;
-    let stop = levels
-        .iter()
-        .find(|r| r.est_flip.is_some_and(|e| e <= target))
-        .unwrap_or(last);
-    let oracle = levels.iter().find(|r| r.true_flip.is_some_and(|t| t <= target));
-    Some((stop.true_flip?, stop.minutes, oracle.map(|r| r.minutes)))
+    let stop = levels.iter().find(|r| meets(r, rule, false)).unwrap_or(last);
+    let oracle = levels.iter().find(|r| meets(r, rule, true));
+    Some((meets(stop, rule, true), stop.minutes, oracle.map(|r| r.minutes)))
 }
 
 /// Rows with their estimates re-derived from the recorded change FLIP with the product's current
@@ -68,6 +80,14 @@ fn ratios(rows: &[&LoopRow], first: bool) -> Vec<f64> {
         .collect()
 }
 
+/// True / change RMSE of `rows`, 10^((change - true PSNR) / 20), at level 1 (`first`) or at levels 2..
+fn rmse_ratios(rows: &[&LoopRow], first: bool) -> Vec<f64> {
+    rows.iter()
+        .filter(|r| (r.level == 1) == first)
+        .filter_map(|r| Some(10f64.powf((r.change_psnr? - r.true_psnr?) / 20.0)))
+        .collect()
+}
+
 /// Median, 5% and 95% quantiles of `v`, as the report prints them.
 fn quantiles(v: &[f64]) -> String {
     format!(
@@ -78,25 +98,29 @@ fn quantiles(v: &[f64]) -> String {
     )
 }
 
-/// The targets the stop rule is replayed at (point FLIP).
+/// The targets the stop rule is replayed at (point FLIP, and point PSNR in dB).
 const STOP_TARGETS: [f64; 2] = [0.02, 0.01];
+const PSNR_TARGETS: [f64; 2] = [45.0, 50.0];
 
 /// The stop rule replayed at `target` on `rows` (one strategy, their estimates set): scans meeting
 /// it at the stop level, time / oracle (geometric mean, max), scans whose target no level met.
-fn stop_cells(rows: &[&LoopRow], target: f64) -> String {
+fn stop_cells(rows: &[&LoopRow], rule: StopRule) -> String {
     let mut materials: Vec<&str> = rows.iter().map(|r| r.material.as_str()).collect();
     materials.dedup();
     let (mut hit, mut n, mut ratios, mut unmet) = (0, 0, Vec::new(), 0);
     for m in &materials {
         let levels: Vec<&LoopRow> = rows.iter().copied().filter(|r| r.material == *m).collect();
-        if let Some((t, minutes, oracle)) = replay(&levels, target) {
+        if let Some((met, minutes, oracle)) = replay(&levels, rule) {
             n += 1;
-            hit += usize::from(t <= target);
+            hit += usize::from(met);
             match oracle {
                 Some(o) => ratios.push(minutes / o),
                 None => unmet += 1,
             }
         }
+    }
+    if ratios.is_empty() {
+        return format!("{hit} of {n} | - | {unmet}");
     }
     format!(
         "{hit} of {n} | {:.2}, {:.2} | {unmet}",
@@ -147,7 +171,11 @@ pub fn stop_replay(
         }
         let refs: Vec<&LoopRow> = mine.iter().collect();
         for target in STOP_TARGETS {
-            let _ = writeln!(md, "| {name} | {target} | {} |", stop_cells(&refs, target));
+            let _ = writeln!(
+                md,
+                "| {name} | {target} | {} |",
+                stop_cells(&refs, StopRule::TargetFlip(target))
+            );
         }
     }
     Ok(md)
@@ -176,6 +204,19 @@ pub fn summary(rows: &[LoopRow], title: &str, regenerate: &str) -> String {
         closed_loop::FIRST_FLIP_RATIO_LO,
         closed_loop::FIRST_FLIP_RATIO_HI
     );
+    let (later, first) = (rmse_ratios(&adaptive, false), rmse_ratios(&adaptive, true));
+    let _ = writeln!(
+        md,
+        "PSNR estimate: true render RMSE / change RMSE over {} levels 2..: {} (product constant \
+         `RMSE_RATIO`: {}); level 1, true / split change RMSE over {} levels: {} (product constant \
+         `FIRST_RMSE_RATIO`: {}).\n",
+        later.len(),
+        quantiles(&later),
+        closed_loop::RMSE_RATIO,
+        first.len(),
+        quantiles(&first),
+        closed_loop::FIRST_RMSE_RATIO
+    );
     let inside = adaptive
         .iter()
         .filter_map(|r| Some(r.true_flip? >= r.est_lo? && r.true_flip? <= r.est_hi?))
@@ -199,7 +240,19 @@ pub fn summary(rows: &[LoopRow], title: &str, regenerate: &str) -> String {
     let _ = writeln!(md, "## Stop rules (replayed on the recorded estimates)\n");
     let _ = writeln!(md, "| target FLIP | scans meeting it at the stop level | time / oracle (geomean, max) | scans whose target no level met |\n|---|---|---|---|");
     for target in STOP_TARGETS {
-        let _ = writeln!(md, "| {target} | {} |", stop_cells(&adaptive, target));
+        let _ = writeln!(
+            md,
+            "| {target} | {} |",
+            stop_cells(&adaptive, StopRule::TargetFlip(target))
+        );
+    }
+    let _ = writeln!(md, "\n| target PSNR (dB) | scans meeting it at the stop level | time / oracle (geomean, max) | scans whose target no level met |\n|---|---|---|---|");
+    for target in PSNR_TARGETS {
+        let _ = writeln!(
+            md,
+            "| {target} | {} |",
+            stop_cells(&adaptive, StopRule::TargetPsnr(target))
+        );
     }
     absolute_errors(&mut md, rows);
     equal_directions(&mut md, rows, &materials, "adaptive", "closed loop");
