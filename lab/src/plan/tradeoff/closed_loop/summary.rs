@@ -238,21 +238,17 @@ pub fn summary(rows: &[LoopRow], title: &str, regenerate: &str) -> String {
     let mut materials: Vec<&str> = rows.iter().map(|r| r.material.as_str()).collect();
     materials.dedup();
     let _ = writeln!(md, "## Stop rules (replayed on the recorded estimates)\n");
-    let _ = writeln!(md, "| target FLIP | scans meeting it at the stop level | time / oracle (geomean, max) | scans whose target no level met |\n|---|---|---|---|");
-    for target in STOP_TARGETS {
-        let _ = writeln!(
-            md,
-            "| {target} | {} |",
-            stop_cells(&adaptive, StopRule::TargetFlip(target))
-        );
-    }
-    let _ = writeln!(md, "\n| target PSNR (dB) | scans meeting it at the stop level | time / oracle (geomean, max) | scans whose target no level met |\n|---|---|---|---|");
-    for target in PSNR_TARGETS {
-        let _ = writeln!(
-            md,
-            "| {target} | {} |",
-            stop_cells(&adaptive, StopRule::TargetPsnr(target))
-        );
+    for (unit, targets, psnr) in [("FLIP", STOP_TARGETS, false), ("PSNR (dB)", PSNR_TARGETS, true)] {
+        let sep = if psnr { "\n" } else { "" };
+        let _ = writeln!(md, "{sep}| target {unit} | scans meeting it at the stop level | time / oracle (geomean, max) | scans whose target no level met |\n|---|---|---|---|");
+        for target in targets {
+            let rule = if psnr {
+                StopRule::TargetPsnr(target)
+            } else {
+                StopRule::TargetFlip(target)
+            };
+            let _ = writeln!(md, "| {target} | {} |", stop_cells(&adaptive, rule));
+        }
     }
     absolute_errors(&mut md, rows);
     equal_directions(&mut md, rows, &materials, "adaptive", "closed loop");
