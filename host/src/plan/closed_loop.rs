@@ -52,6 +52,16 @@ pub const INTERVAL_SHRINK: f64 = 0.6;
 /// The documented default target when the user gives no rule: estimated point FLIP <= 0.01.
 pub const DEFAULT_TARGET_FLIP: f64 = 0.01;
 
+/// Estimated point FLIP with its 90% interval from a change FLIP (`split`: level 1's split change).
+pub fn estimated_flip(split: bool, change_flip: f64) -> (f64, f64, f64) {
+    let (m, lo, hi) = if split {
+        (FIRST_FLIP_RATIO, FIRST_FLIP_RATIO_LO, FIRST_FLIP_RATIO_HI)
+    } else {
+        (FLIP_RATIO, FLIP_RATIO_LO, FLIP_RATIO_HI)
+    };
+    (change_flip * m, change_flip * lo, change_flip * hi)
+}
+
 /// Estimated point PSNR (dB) from a change PSNR (`split`: level 1's split change): a true RMSE
 /// the ratio times the change's.
 pub fn estimated_psnr(split: bool, change_psnr: f64) -> f64 {
@@ -241,7 +251,7 @@ impl Assessor {
                 let d = if c.flip.is_finite() { c.flip } else { 1.0 };
                 a.change_flip = Some(d);
                 a.change_psnr = Some(c.psnr);
-                a.est_flip = Some((d * FLIP_RATIO, d * FLIP_RATIO_LO, d * FLIP_RATIO_HI));
+                a.est_flip = Some(estimated_flip(false, d));
                 a.est_psnr = Some(estimated_psnr(false, c.psnr));
             }
         }
@@ -263,7 +273,7 @@ impl Assessor {
         if self.previous.is_none() {
             if let Some((d, psnr)) = self.split_change(&nodes, level.level, values, &image) {
                 a.change_flip = Some(d);
-                a.est_flip = Some((d * FIRST_FLIP_RATIO, d * FIRST_FLIP_RATIO_LO, d * FIRST_FLIP_RATIO_HI));
+                a.est_flip = Some(estimated_flip(true, d));
                 a.change_psnr = Some(psnr);
                 a.est_psnr = Some(estimated_psnr(true, psnr));
             }

@@ -50,22 +50,8 @@ pub fn replay(levels: &[&LoopRow], rule: StopRule) -> Option<(bool, f64, Option<
 pub fn with_current_constants(mut rows: Vec<LoopRow>) -> Vec<LoopRow> {
     for r in &mut rows {
         if let Some(d) = r.change_flip {
-            let (m, lo, hi) = if r.level == 1 {
-                (
-                    closed_loop::FIRST_FLIP_RATIO,
-                    closed_loop::FIRST_FLIP_RATIO_LO,
-                    closed_loop::FIRST_FLIP_RATIO_HI,
-                )
-            } else {
-                (
-                    closed_loop::FLIP_RATIO,
-                    closed_loop::FLIP_RATIO_LO,
-                    closed_loop::FLIP_RATIO_HI,
-                )
-            };
-            r.est_flip = Some(d * m);
-            r.est_lo = Some(d * lo);
-            r.est_hi = Some(d * hi);
+            let (e, lo, hi) = closed_loop::estimated_flip(r.level == 1, d);
+            (r.est_flip, r.est_lo, r.est_hi) = (Some(e), Some(lo), Some(hi));
         }
     }
     rows
