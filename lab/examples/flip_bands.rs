@@ -1,8 +1,9 @@
 //! Where a reconstruction's point-light FLIP comes from: the trade-off report's point-light render
 //! (`examples/sphere-point.toml` at 128 px, the `point` columns of `gonio-lab tradeoff`) split into bands
 //! of the half-vector angle theta_h of each sphere pixel, for the `auto` plan (from the photo
-//! estimate, as `gonio-lab tradeoff`'s `adaptive`) and the uniform grid at one level. Per band it prints
-//! the band's share of the mean FLIP (the shares sum to the mean), the mean luminance of the truth
+//! estimate, as `gonio-lab tradeoff`'s `adaptive`) and the uniform grid at one level. First the mean
+//! FLIP's split by the pixel's theta_i and theta_o (both grazing at the rim, theta_i grazing at the
+//! terminator); then per theta_h band the band's share of the mean FLIP (the shares sum to the mean), the mean luminance of the truth
 //! and of the reconstruction, and their ratio per channel; then the profile of f cos theta_i along the plane of the light and the
 //! camera (truth, each reconstruction, and its fitted prior without the residual grid).
 //!
@@ -25,6 +26,9 @@ use gonio_lab::plan::tradeoff::{capture_photo, photo_estimate};
 
 /// Band edges in theta_h (degrees); the last band holds pixels facing away from the half vector.
 const EDGES: [f64; 11] = [0.0, 2.0, 4.0, 7.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0, 180.0];
+/// Upper edges of the theta_i and theta_o bands (degrees) of the second table: 78.75 is the 8x8
+/// uniform grid's last ring; the last band holds pixels the light does not reach.
+const ANGLE_EDGES: [f64; 7] = [30.0, 60.0, 70.0, 78.75, 84.0, 90.0, 181.0];
 /// Side of the point-light render, as `gonio-lab tradeoff`'s default `--size`.
 const SIZE: usize = 128;
 
@@ -102,6 +106,7 @@ fn main() -> anyhow::Result<()> {
             let (mut sum_t, mut sum_r) = (vec![DVec3::ZERO; bands], vec![DVec3::ZERO; bands]);
             let total = (map.width * map.height) as f64;
             let mut outside = 0.0;
+            let mut by_angles = [[0.0f64; ANGLE_EDGES.len()]; ANGLE_EDGES.len()];
             for py in 0..map.height {
                 for px in 0..map.width {
                     let idx = py * map.width + px;
@@ -119,6 +124,15 @@ fn main() -> anyhow::Result<()> {
                     let theta_h = n.dot(h).clamp(-1.0, 1.0).acos().to_degrees();
                     let b = EDGES[1..].iter().position(|&edge| theta_h < edge).unwrap_or(bands - 1);
                     share[b] += e / total;
+                    let band = |theta: f64| {
+                        ANGLE_EDGES
+                            .iter()
+                            .position(|&edge| theta < edge)
+                            .unwrap_or(ANGLE_EDGES.len() - 1)
+                    };
+                    let theta_i = n.dot((position - n).normalize()).clamp(-1.0, 1.0).acos().to_degrees();
+                    let theta_o = n.z.clamp(-1.0, 1.0).acos().to_degrees();
+                    by_angles[band(theta_i)][band(theta_o)] += e / total;
                     count[b] += 1;
                     sum_t[b] += truth_img.pixels[idx];
                     sum_r[b] += img.pixels[idx];
@@ -129,24 +143,36 @@ fn main() -> anyhow::Result<()> {
             if (sum - c.flip).abs() > 1e-9 {
                 bail!("band shares sum to {sum}, the mean FLIP is {}", c.flip);
             }
+            println!("  FLIP share by theta_i (rows) x theta_o (columns), upper edges (deg) {ANGLE_EDGES:?}");
+            for (edge, row) in ANGLE_EDGES.iter().zip(&by_angles) {
+                let cells: Vec<String> = row.iter().map(|v| format!("{v:8.5}")).collect();
+                println!("  {edge:>7} {}", cells.join(" "));
+            }
             println!("  theta_h (deg)  pixels  FLIP share  truth lum  rec lum  rec/truth R G B");
             for b in 0..bands {
                 if count[b] == 0 {
                     continue;
                 }
                 let k = count[b] as f64;
-                let ratio = sum_r[b] / sum_t[b].max(DVec3::splat(f64::MIN_POSITIVE));
+                // A channel the truth leaves black has no ratio.
+                let ratio = |r: f64, t: f64| {
+                    if t > 0.0 {
+                        format!("{:.2}", r / t)
+                    } else {
+                        "-".to_string()
+                    }
+                };
                 println!(
-                    "  {:>5}-{:<6} {:>7}  {:>10.5}  {:>9.4}  {:>7.4}  {:.2} {:.2} {:.2}",
+                    "  {:>5}-{:<6} {:>7}  {:>10.5}  {:>9.4}  {:>7.4}  {} {} {}",
                     EDGES[b],
                     EDGES[b + 1],
                     count[b],
                     share[b],
                     luminance(sum_t[b]) / k,
                     luminance(sum_r[b]) / k,
-                    ratio.x,
-                    ratio.y,
-                    ratio.z
+                    ratio(sum_r[b].x, sum_t[b].x),
+                    ratio(sum_r[b].y, sum_t[b].y),
+                    ratio(sum_r[b].z, sum_t[b].z)
                 );
             }
             println!("  background: FLIP share {:.5}", outside / total);

@@ -4,8 +4,9 @@
 //!
 //! * `eval(wi, wo)`: rotate both by -phi_i, find the two slices bracketing theta_i (clamped beyond
 //!   the ends), map wo to u through each slice's inverse warp, interpolate bilinearly in u
-//!   (periodic in u.y), then linearly in theta_i. Nodes without a measurement are left out and the
-//!   other weights renormalised, as is a slice that cannot map wo back.
+//!   (periodic in u.y), then in theta_i by a cubic Hermite through the bracketing slices (tangents
+//!   from their neighbours). Nodes without a measurement are left out and the other weights
+//!   renormalised; a slice that cannot map wo back is left out too.
 //! * A warp in the mirror limit has no inverse and is refused.
 
 use super::frame::{from_spherical, phi_of, rotate_z, theta_of};
@@ -297,7 +298,10 @@ impl Material for MeasurementGrid {
 }
 
 impl MeasurementGrid {
-    /// Linear in theta_i between the bracketing slices' values (`value(k)`).
+    /// In theta_i through the bracketing slices' values (`value(k)`): a cubic Hermite whose tangents
+    /// are the differences across each bracketing slice's neighbours (the secant at the ends or
+    /// where a neighbour has no value), so a residual that bends toward grazing incidence is not cut
+    /// straight between slices; linear where a bracketing slice has no value (docs/planner.md).
     fn eval_local(&self, t: f64, value: &dyn Fn(usize) -> Option<DVec3>) -> DVec3 {
         let last = self.theta_i.len() - 1;
         // Bracketing slices and the weight of the upper one; clamped (no extrapolation) outside.
@@ -312,19 +316,29 @@ impl MeasurementGrid {
             let (a, b) = (self.theta_i[k0], self.theta_i[k0 + 1]);
             (k0 + 1, ((t - a) / (b - a)).clamp(0.0, 1.0))
         };
-        let (mut acc, mut wsum) = (DVec3::ZERO, 0.0);
-        for (k, w) in [(k0, 1.0 - w1), (k1, w1)] {
-            if w > 0.0 {
-                if let Some(v) = value(k) {
-                    acc += w * v;
-                    wsum += w;
-                }
+        let v0 = if w1 < 1.0 { value(k0) } else { None };
+        let v1 = if w1 > 0.0 { value(k1) } else { None };
+        match (v0, v1) {
+            (Some(v0), Some(v1)) => {
+                let (t0, t1) = (self.theta_i[k0], self.theta_i[k1]);
+                let secant = (v1 - v0) / (t1 - t0);
+                let m0 = match k0.checked_sub(1).and_then(|k| Some((k, value(k)?))) {
+                    Some((k, before)) => (v1 - before) / (t1 - self.theta_i[k]),
+                    None => secant,
+                };
+                let m1 = match (k1 < last).then(|| value(k1 + 1)).flatten() {
+                    Some(after) => (after - v0) / (self.theta_i[k1 + 1] - t0),
+                    None => secant,
+                };
+                let (s, h) = (w1, t1 - t0);
+                let (s2, s3) = (s * s, s * s * s);
+                (2.0 * s3 - 3.0 * s2 + 1.0) * v0
+                    + (s3 - 2.0 * s2 + s) * h * m0
+                    + (3.0 * s2 - 2.0 * s3) * v1
+                    + (s3 - s2) * h * m1
             }
-        }
-        if wsum > 0.0 {
-            acc / wsum
-        } else {
-            DVec3::ZERO
+            (Some(v), None) | (None, Some(v)) => v,
+            (None, None) => DVec3::ZERO,
         }
     }
 }
@@ -497,6 +511,58 @@ mod tests {
             }
             assert!(checked > 500, "{warp}: only {checked} valid nodes");
         }
+    }
+
+    /// A material whose value depends on theta_i alone, as `value(theta_i)` in every channel.
+    struct ByIncidence(fn(f64) -> f64);
+
+    impl Material for ByIncidence {
+        fn eval(&self, wi: DVec3, wo: DVec3) -> DVec3 {
+            if wi.z <= 0.0 || wo.z <= 0.0 {
+                return DVec3::ZERO;
+            }
+            DVec3::splat((self.0)(theta_of(wi)))
+        }
+    }
+
+    /// Between slices, theta_i is a cubic Hermite: exact on a quadratic between interior slices
+    /// (the straight line misses it by c h^2 / 4 at mid-segment), the straight line itself with only
+    /// two slices (both tangents are the secant), and a slice without values leaves its neighbours
+    /// finite; outside the slices the end values are held.
+    #[test]
+    fn between_slices_the_interpolation_follows_curvature() {
+        let quadratic = ByIncidence(|t| 1.0 + 0.5 * t + 2.0 * t * t);
+        let thetas: Vec<f64> = (0..8).map(|k| k as f64 / 7.0 * THETA_I_MAX).collect();
+        let h = thetas[1];
+        let grid = measured(&quadratic, WarpKind::Cosine, thetas.clone(), 4, 4);
+        let wo = from_spherical(0.4, 1.0);
+        for k in 1..6 {
+            let t = thetas[k] + 0.5 * h;
+            let got = grid.eval(from_spherical(t, 0.3), rotate_z(wo, 0.3)).x;
+            let want = (quadratic.0)(t);
+            assert!((got - want).abs() < 1e-9, "segment {k}: {got} vs {want}");
+            let straight = 0.5 * ((quadratic.0)(thetas[k]) + (quadratic.0)(thetas[k + 1]));
+            assert!(
+                (straight - want).abs() > 0.4 * h * h,
+                "the line would miss by 2 h^2 / 4"
+            );
+        }
+        let two = measured(&quadratic, WarpKind::Cosine, vec![thetas[2], thetas[3]], 4, 4);
+        let t = thetas[2] + 0.25 * h;
+        let line = 0.75 * (quadratic.0)(thetas[2]) + 0.25 * (quadratic.0)(thetas[3]);
+        assert!((two.eval(from_spherical(t, 0.0), wo).x - line).abs() < 1e-9);
+        let mut holed = grid.clone();
+        for j in 0..4 {
+            for i in 0..4 {
+                holed.set_node(3, i, j, None);
+            }
+        }
+        for t in [thetas[2] + 0.5 * h, thetas[3] + 0.5 * h, thetas[4] + 0.5 * h] {
+            let v = holed.eval(from_spherical(t, 0.0), wo).x;
+            assert!(v.is_finite() && v > 0.0, "theta_i {t}: {v}");
+        }
+        let beyond = grid.eval(from_spherical(THETA_I_MAX + 0.005, 0.0), wo).x;
+        assert!((beyond - (quadratic.0)(THETA_I_MAX)).abs() < 1e-9);
     }
 
     #[test]

@@ -590,7 +590,8 @@ pub fn run(
     progress: &dyn Fn(&str),
 ) -> Result<String, PlanError> {
     let rows = match source {
-        RowSource::Csv(path) => read_rows(path)?,
+        // An earlier run's rows, their estimates re-derived so the csv agrees with the summary.
+        RowSource::Csv(path) => with_current_constants(read_rows(path)?),
         RowSource::Simulate {
             materials,
             instrument,
