@@ -6,7 +6,7 @@
 //!   the ends), map wo to u through each slice's inverse warp, interpolate bilinearly in u
 //!   (periodic in u.y), then in theta_i by a cubic Hermite through the bracketing slices (tangents
 //!   from their neighbours). Nodes without a measurement are left out and the other weights
-//!   renormalised; a slice that cannot map wo back is left out too.
+//!   renormalised; a slice that cannot map wo back is left out too (the other bracketing slice alone).
 //! * A warp in the mirror limit has no inverse and is refused.
 
 use super::frame::{from_spherical, phi_of, rotate_z, theta_of};
@@ -301,7 +301,7 @@ impl MeasurementGrid {
     /// In theta_i through the bracketing slices' values (`value(k)`): a cubic Hermite whose tangents
     /// are the differences across each bracketing slice's neighbours (the secant at the ends or
     /// where a neighbour has no value), so a residual that bends toward grazing incidence is not cut
-    /// straight between slices; linear where a bracketing slice has no value (docs/planner.md).
+    /// straight between slices; where one bracketing slice has no value, the other's alone (docs/planner.md).
     fn eval_local(&self, t: f64, value: &dyn Fn(usize) -> Option<DVec3>) -> DVec3 {
         let last = self.theta_i.len() - 1;
         // Bracketing slices and the weight of the upper one; clamped (no extrapolation) outside.
