@@ -301,7 +301,8 @@ impl MeasurementGrid {
     /// In theta_i through the bracketing slices' values (`value(k)`): a cubic Hermite whose tangents
     /// are the differences across each bracketing slice's neighbours (the secant at the ends or
     /// where a neighbour has no value), so a residual that bends toward grazing incidence is not cut
-    /// straight between slices; where one bracketing slice has no value, the other's alone (docs/planner.md).
+    /// straight between slices; where one bracketing slice has no value, the other's alone, even
+    /// where its weight is 0 (docs/planner.md).
     fn eval_local(&self, t: f64, value: &dyn Fn(usize) -> Option<DVec3>) -> DVec3 {
         let last = self.theta_i.len() - 1;
         // Bracketing slices and the weight of the upper one; clamped (no extrapolation) outside.
@@ -316,8 +317,10 @@ impl MeasurementGrid {
             let (a, b) = (self.theta_i[k0], self.theta_i[k0 + 1]);
             (k0 + 1, ((t - a) / (b - a)).clamp(0.0, 1.0))
         };
+        // A bracketing slice at weight 0 is read only where the other has no value.
         let v0 = if w1 < 1.0 { value(k0) } else { None };
-        let v1 = if w1 > 0.0 { value(k1) } else { None };
+        let v1 = if w1 > 0.0 || v0.is_none() { value(k1) } else { None };
+        let v0 = if w1 >= 1.0 && v1.is_none() { value(k0) } else { v0 };
         match (v0, v1) {
             (Some(v0), Some(v1)) => {
                 let (t0, t1) = (self.theta_i[k0], self.theta_i[k1]);
@@ -563,6 +566,28 @@ mod tests {
         }
         let beyond = grid.eval(from_spherical(THETA_I_MAX + 0.005, 0.0), wo).x;
         assert!((beyond - (quadratic.0)(THETA_I_MAX)).abs() < 1e-9);
+    }
+
+    /// A query on an end slice where that slice has no value reads the next slice, although its
+    /// weight there is 0 (the normal-incidence slice's blocked peak, reconstruct::blocked_peak);
+    /// with neither, the residual is 0.
+    #[test]
+    fn an_end_slice_without_a_value_reads_the_next_slice() {
+        let linear = ByIncidence(|t| 1.0 + t);
+        let thetas = vec![0.0, 0.2, 0.4];
+        let mut grid = measured(&linear, WarpKind::Cosine, thetas.clone(), 4, 4);
+        for j in 0..4 {
+            grid.set_node(0, 0, j, None);
+        }
+        let pole = DVec3::Z;
+        assert!((grid.eval(pole, pole).x - (linear.0)(thetas[1])).abs() < 1e-12);
+        // Off the pole slice 0 still has its ring-1 nodes.
+        let wo = from_spherical(0.5, 0.0);
+        assert!((grid.eval(pole, wo).x - (linear.0)(0.0)).abs() < 1e-12);
+        for j in 0..4 {
+            grid.set_node(1, 0, j, None);
+        }
+        assert_eq!(grid.eval(pole, pole), DVec3::ZERO);
     }
 
     #[test]

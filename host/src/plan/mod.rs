@@ -333,6 +333,8 @@ pub struct Plan {
     estimate_alpha: f64,
     /// Where each level's nodes sit in u (`node_layout`).
     layout: NodeLayout,
+    /// The arms' blocked cone around wi (rad, the instrument's blocking angle).
+    blocking_angle: f64,
     /// The elevations and warps of levels with fewer elevations than the plan: (stride, thetas, slices).
     incoming_subsets: Vec<(usize, Vec<f64>, Vec<SliceWarp>)>,
 }
@@ -481,6 +483,7 @@ impl Levels for Plan {
                 .map(|d| (d.k / stride, d.wi, d.wo))
                 .collect(),
             estimate_alpha: self.estimate_alpha,
+            blocked_cone: self.blocking_angle,
         })
     }
 }

@@ -164,6 +164,7 @@ impl Planner {
             settle_exposure_seconds: self.settle_exposure(),
             estimate_alpha: self.estimate.alpha().max(PLAN_ALPHA_MIN),
             layout,
+            blocking_angle: self.kin.config().blocking_angle,
             incoming_subsets: subsets(&strides, &thetas, &warps),
             thetas,
             slices: warps,

@@ -42,6 +42,8 @@ pub struct LevelNodes<'a> {
     pub measured: Vec<(usize, DVec3, DVec3)>,
     /// Roughness of the estimate the plan was built from (the prior's sharp-lobe floor reads it).
     pub estimate_alpha: f64,
+    /// Half-angle (rad) of the arms' blocked cone around wi (`blocked_peak`); 0: none.
+    pub blocked_cone: f64,
 }
 
 /// Whatever holds measured levels (a plan).
@@ -80,6 +82,7 @@ impl<'a> LevelNodes<'a> {
                 node_measurement,
                 measured,
                 estimate_alpha: self.estimate_alpha,
+                blocked_cone: self.blocked_cone,
             },
             kept,
         )
@@ -119,6 +122,15 @@ pub const GUIDE_WIDTH: f64 = 1.0;
 /// The guide value of a prior's value: the mean of its channels in the interpolated space.
 fn guide_of(prior: DVec3) -> f64 {
     forward(prior).element_sum() / 3.0
+}
+
+/// Whether node direction (wi, wo) stands on a specular peak the instrument cannot see: wo inside the
+/// arms' blocked cone around wi (half-angle `cone`) in a slice whose mirror direction is inside it
+/// too (theta_i < cone / 2: normal incidence). Its measurement was nudged out of the cone, onto the
+/// peak's far tail; the lobe's height there is read from the next slice, whose peak is measured.
+pub fn blocked_peak(wi: DVec3, wo: DVec3, cone: f64) -> bool {
+    let theta_i = wi.z.clamp(-1.0, 1.0).acos();
+    theta_i < 0.5 * cone && wi.angle_between(wo) < cone
 }
 
 /// Whether a level of `n` rings laid out as `layout` keeps its residual grid on top of a fitted
@@ -175,9 +187,17 @@ pub fn reconstruct_with(
     let fitted = prior.fit(&samples_of(&nodes, values));
     // Without a prior the grid is the whole reconstruction, so it always keeps the values.
     let residual = fitted.is_none() || level_keeps_residual(nodes.layout, nodes.n);
+    let mut holes = Vec::new();
     for k in 0..nodes.thetas.len() {
         for j in 0..nodes.m {
             for i in 0..nodes.n {
+                if grid
+                    .node_directions(k, i, j)
+                    .is_some_and(|(wi, wo)| blocked_peak(wi, wo, nodes.blocked_cone))
+                {
+                    holes.push((k, i, j));
+                    continue;
+                }
                 let v = nodes.node_measurement[(k * nodes.m + j) * nodes.n + i].map(|d| {
                     // A fit-alone level stores zero residuals.
                     if !residual {
@@ -194,6 +214,10 @@ pub fn reconstruct_with(
         }
     }
     grid.fill_from_nearest();
+    // After the fill: a blocked peak's node stays empty, so the lookup reads the next slice there.
+    for &(k, i, j) in &holes {
+        grid.set_node(k, i, j, None);
+    }
     if let (Some(p), true) = (&fitted, residual) {
         let guide = (0..nodes.thetas.len())
             .flat_map(|k| (0..nodes.m).flat_map(move |j| (0..nodes.n).map(move |i| (k, i, j))))
@@ -251,9 +275,8 @@ impl Reconstruction {
     }
 
     /// The reconstruction's value (BRDF, 1/sr) at node (k, i, j); None where the node has no
-    /// direction or no value.
+    /// direction. A node left empty (`blocked_peak`) has the value the lookup reads there.
     pub fn node_value(&self, k: usize, i: usize, j: usize) -> Option<DVec3> {
-        self.grid.node_value(k, i, j)?;
         let (wi, wo) = self.grid.node_directions(k, i, j)?;
         Some(self.eval(wi, wo))
     }

@@ -54,6 +54,7 @@ impl Levels for Uniform2x2 {
             node_measurement: (0..self.measured.len()).map(Some).collect(),
             measured: self.measured.clone(),
             estimate_alpha: 0.2,
+            blocked_cone: 0.0,
         })
     }
 }

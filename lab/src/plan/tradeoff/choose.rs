@@ -48,6 +48,7 @@ pub struct LeaveOut {
     node_measurement: Vec<Option<usize>>,
     measured: Vec<(usize, DVec3, DVec3)>,
     estimate_alpha: f64,
+    blocked_cone: f64,
     pub values: Vec<DVec3>,
 }
 
@@ -94,6 +95,7 @@ impl LeaveOut {
             node_measurement: old.iter().map(|d| d.and_then(|d| index.get(&d).copied())).collect(),
             measured,
             estimate_alpha: nodes.estimate_alpha,
+            blocked_cone: nodes.blocked_cone,
             values: used.iter().map(|&d| values[d]).collect(),
         })
     }
@@ -110,6 +112,7 @@ impl Levels for LeaveOut {
             node_measurement: self.node_measurement.clone(),
             measured: self.measured.clone(),
             estimate_alpha: self.estimate_alpha,
+            blocked_cone: self.blocked_cone,
         })
     }
 }
