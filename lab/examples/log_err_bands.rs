@@ -13,6 +13,7 @@
 use anyhow::Context;
 use glam::DVec3;
 use gonio::brdf::fit::fit_directions;
+use gonio::brdf::frame::theta_of;
 use gonio::brdf::{parse_material, Material};
 use gonio::encoder::infer::Encoder;
 use gonio::encoder::ModelKind;
@@ -36,10 +37,10 @@ fn main() -> anyhow::Result<()> {
     let encoder = Encoder::shipped(ModelKind::Ggx)?;
     let instrument = gonio::instrument::default_instrument();
     let pairs = fit_directions();
-    let band_of = |(wi, wo): &(DVec3, DVec3)| {
-        let h = (*wi + *wo).normalize();
-        let theta_h = h.z.clamp(-1.0, 1.0).acos().to_degrees();
-        EDGES[1..].iter().position(|&e| theta_h < e).unwrap_or(EDGES.len() - 2)
+    let theta_h = |wi: DVec3, wo: DVec3| theta_of((wi + wo).normalize()).to_degrees();
+    let band_of = |&(wi, wo): &(DVec3, DVec3)| {
+        let t = theta_h(wi, wo);
+        EDGES[1..].iter().position(|&e| t < e).unwrap_or(EDGES.len() - 2)
     };
     let mut banded: Vec<Vec<(DVec3, DVec3)>> = vec![Vec::new(); EDGES.len() - 1];
     for p in &pairs {
@@ -89,12 +90,11 @@ fn main() -> anyhow::Result<()> {
                 if peak {
                     for (wi, wo) in banded[0].iter().chain(&banded[1]) {
                         let lum = |v: DVec3| gonio::brdf::frame::luminance(v);
-                        let h = (*wi + *wo).normalize();
                         println!(
                             "      ti {:5.1} to {:5.1} th {:.3} truth {:10.3} rec {:10.3} prior {:10.3}",
-                            wi.z.acos().to_degrees(),
-                            wo.z.acos().to_degrees(),
-                            h.z.clamp(-1.0, 1.0).acos().to_degrees(),
+                            theta_of(*wi).to_degrees(),
+                            theta_of(*wo).to_degrees(),
+                            theta_h(*wi, *wo),
                             lum(truth.eval(*wi, *wo)),
                             lum(rec.eval(*wi, *wo)),
                             lum(p.eval(*wi, *wo))

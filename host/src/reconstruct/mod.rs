@@ -10,6 +10,7 @@ pub mod prior;
 
 pub use prior::{FittedPrior, LevelSamples, NoPrior, OtherModel, Prior, TwoLobesPrior, SHARP_FLOOR_SHARE};
 
+use crate::brdf::frame::theta_of;
 use crate::brdf::grid::{MeasurementGrid, NodeLayout};
 use crate::brdf::warp::{SliceWarp, UniformAngles, Warp};
 use crate::brdf::{BrdfError, Material};
@@ -129,8 +130,7 @@ fn guide_of(prior: DVec3) -> f64 {
 /// too (theta_i < cone / 2: normal incidence). Its measurement was nudged out of the cone, onto the
 /// peak's far tail; the lobe's height there is read from the next slice, whose peak is measured.
 pub fn blocked_peak(wi: DVec3, wo: DVec3, cone: f64) -> bool {
-    let theta_i = wi.z.clamp(-1.0, 1.0).acos();
-    theta_i < 0.5 * cone && wi.angle_between(wo) < cone
+    theta_of(wi) < 0.5 * cone && wi.angle_between(wo) < cone
 }
 
 /// Whether a level of `n` rings laid out as `layout` keeps its residual grid on top of a fitted
