@@ -142,7 +142,7 @@ pub fn level_keeps_residual(layout: NodeLayout, n: usize) -> bool {
 /// The product reconstruction's settings in one line (a scan records them; a resume compares them).
 pub fn settings() -> String {
     format!(
-        "prior {} ({} folds, ridge {}, unexplained <= {}), ratio residual (floor {RATIO_FLOOR} /sr), lookup blended by the lobes' share",
+        "prior {} ({} folds, ridge {}, unexplained <= {}), ratio residual (floor {RATIO_FLOOR} /sr), lookup blended by the lobes' share (guide width {GUIDE_WIDTH}), cubic between incoming slices, normal-incidence peak from the next slice",
         pca::selected::NAME,
         pca::selected::FOLDS,
         pca::selected::PCA_RIDGE,

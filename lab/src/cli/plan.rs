@@ -5,7 +5,7 @@ use anyhow::{bail, Context, Result};
 use gonio::plan::{PlanError, MAX_LEVEL};
 use gonio_lab::plan::report::{self, ReportConfig};
 use gonio_lab::plan::{tradeoff, trials};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 fn level_of(n: usize, what: &str) -> Result<usize> {
     if n < 2 || !n.is_power_of_two() || n.trailing_zeros() as usize > MAX_LEVEL {
@@ -170,6 +170,10 @@ pub fn run_tradeoff(args: TradeoffArgs) -> Result<()> {
     })
 }
 
+/// `closed-loop`'s finest grid and environment scene unless given (its regenerate line names others).
+const DEFAULT_MAX_GRID: usize = 16;
+const DEFAULT_ENV_SCENE: &str = "examples/sphere-sky.toml";
+
 #[derive(clap::Args)]
 pub struct ClosedLoopArgs {
     /// Material set (training: where the estimator's constants are chosen).
@@ -181,14 +185,14 @@ pub struct ClosedLoopArgs {
     #[arg(long)]
     pub instrument: Option<PathBuf>,
     /// Finest grid (power of two).
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = DEFAULT_MAX_GRID)]
     pub max_grid: usize,
     /// Summarise the rows of an earlier run's closed-loop.csv (with the product's current
     /// constants) instead of running the loop again.
     #[arg(long, value_name = "CSV")]
     pub rows: Option<PathBuf>,
     /// The environment-lit scene the env FLIP is scored in (noise-free quadrature render).
-    #[arg(long, default_value = "examples/sphere-sky.toml")]
+    #[arg(long, default_value = DEFAULT_ENV_SCENE)]
     pub env_scene: PathBuf,
     /// Lab trials beside the loop and the uniform grid (repeatable): `reseed` (the default when
     /// none is given), `confirm` (the lobe-following plan kept only if level 1's fit confirms a
@@ -201,11 +205,29 @@ pub struct ClosedLoopArgs {
     pub output: PathBuf,
 }
 
+/// The options of a `closed-loop` command line that shape its rows, as its report's regenerate
+/// line repeats them (defaults left out).
+fn regenerate_options(args: &ClosedLoopArgs) -> String {
+    let mut given: Vec<String> = args.materials.iter().map(|m| format!(" --material {m}")).collect();
+    given.extend(
+        args.instrument
+            .as_ref()
+            .map(|p| format!(" --instrument {}", p.display())),
+    );
+    if args.max_grid != DEFAULT_MAX_GRID {
+        given.push(format!(" --max-grid {}", args.max_grid));
+    }
+    if args.env_scene != Path::new(DEFAULT_ENV_SCENE) {
+        given.push(format!(" --env-scene {}", args.env_scene.display()));
+    }
+    given.extend(args.trials.iter().map(|t| format!(" --trial {t}")));
+    given.concat()
+}
+
 pub fn run_closed_loop(args: ClosedLoopArgs) -> Result<()> {
     let instrument = gonio::instrument::load_or_default(args.instrument.as_deref())?;
     let max_level = level_of(args.max_grid, "--max-grid")?;
-    // The regenerate line repeats the materials and trials given.
-    let given: Vec<String> = args.materials.iter().map(|m| format!(" --material {m}")).collect();
+    let options = regenerate_options(&args);
     let materials = if args.materials.is_empty() {
         args.preset.materials()
     } else {
@@ -220,10 +242,6 @@ pub fn run_closed_loop(args: ClosedLoopArgs) -> Result<()> {
             .map(|t| tradeoff::closed_loop::Trial::parse(t).map_err(anyhow::Error::msg))
             .collect::<Result<Vec<_>>>()?
     };
-    let trial_args: String = given
-        .into_iter()
-        .chain(args.trials.iter().map(|t| format!(" --trial {t}")))
-        .collect();
     let source = match args.rows.as_deref() {
         Some(csv) => tradeoff::closed_loop::RowSource::Csv(csv),
         None => tradeoff::closed_loop::RowSource::Simulate {
@@ -238,7 +256,7 @@ pub fn run_closed_loop(args: ClosedLoopArgs) -> Result<()> {
     };
     let bar = indicatif::ProgressBar::new(materials.len() as u64);
     with_progress(bar, |progress| {
-        tradeoff::closed_loop::run(args.preset, source, &args.output, &trial_args, progress)
+        tradeoff::closed_loop::run(args.preset, source, &args.output, &options, progress)
     })
 }
 
@@ -277,4 +295,51 @@ pub fn run_stop_replay(args: StopReplayArgs) -> Result<()> {
         .map_err(anyhow::Error::msg)?;
     print!("{md}");
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cmd {
+        #[command(flatten)]
+        args: ClosedLoopArgs,
+    }
+
+    fn options(line: &[&str]) -> String {
+        let cmd = Cmd::try_parse_from(["closed-loop"].iter().chain(line)).expect("parses");
+        regenerate_options(&cmd.args)
+    }
+
+    /// A report regenerated from its own line must see the same rows: every option that shapes
+    /// them is repeated, and defaults are left out.
+    #[test]
+    fn the_regenerate_line_repeats_the_options_that_shape_the_rows() {
+        assert_eq!(options(&["--preset", "real", "-o", "d"]), "");
+        let line = options(&[
+            "--preset",
+            "real",
+            "--max-grid",
+            "32",
+            "--env-scene",
+            "other.toml",
+            "--instrument",
+            "i.toml",
+            "--material",
+            "nbrdf:pvc",
+            "--trial",
+            "none",
+            "--rows",
+            "old.csv",
+            "-o",
+            "d",
+        ]);
+        assert_eq!(
+            line,
+            " --material nbrdf:pvc --instrument i.toml --max-grid 32 --env-scene other.toml --trial none"
+        );
+        assert_eq!(options(&["--preset", "real", "--max-grid", "16", "-o", "d"]), "");
+    }
 }

@@ -581,12 +581,12 @@ pub enum RowSource<'a> {
 }
 
 /// Run the report into `dir` (`closed-loop.csv`, `closed-loop.md`); returns the markdown.
-/// `trial_args`: the command line's `--material` and `--trial` options as given (the regenerate line repeats them).
+/// `options`: the command line's options that shape the rows, as given (the regenerate line repeats them).
 pub fn run(
     preset: LoopPreset,
     source: RowSource<'_>,
     dir: &Path,
-    trial_args: &str,
+    options: &str,
     progress: &dyn Fn(&str),
 ) -> Result<String, PlanError> {
     let rows = match source {
@@ -606,7 +606,7 @@ pub fn run(
     let md = summary(
         &rows,
         &name,
-        &format!("gonio-lab closed-loop --preset {name}{trial_args} -o {}", dir.display()),
+        &format!("gonio-lab closed-loop --preset {name}{options} -o {}", dir.display()),
     );
     write(dir, "closed-loop.md", md.as_bytes())?;
     Ok(md)
