@@ -13,7 +13,7 @@
 use anyhow::Context;
 use glam::DVec3;
 use gonio::brdf::fit::fit_directions;
-use gonio::brdf::frame::theta_of;
+use gonio::brdf::frame::{half_vector, theta_of};
 use gonio::brdf::{parse_material, Material};
 use gonio::encoder::infer::Encoder;
 use gonio::encoder::ModelKind;
@@ -37,7 +37,8 @@ fn main() -> anyhow::Result<()> {
     let encoder = Encoder::shipped(ModelKind::Ggx)?;
     let instrument = gonio::instrument::default_instrument();
     let pairs = fit_directions();
-    let theta_h = |wi: DVec3, wo: DVec3| theta_of((wi + wo).normalize()).to_degrees();
+    // Opposite directions have no half vector: counted in the last band (facing away).
+    let theta_h = |wi: DVec3, wo: DVec3| half_vector(wi, wo).map_or(180.0, |h| theta_of(h).to_degrees());
     let band_of = |&(wi, wo): &(DVec3, DVec3)| {
         let t = theta_h(wi, wo);
         EDGES[1..].iter().position(|&e| t < e).unwrap_or(EDGES.len() - 2)

@@ -11,7 +11,7 @@ pub struct PeerArgs {
     #[arg(long)]
     pub instrument: Option<PathBuf>,
     /// Environment-lit scene (its environment map is read relative to it).
-    #[arg(long, default_value = "examples/sphere-sky.toml")]
+    #[arg(long, default_value = super::plan::DEFAULT_ENV_SCENE)]
     pub env_scene: PathBuf,
     /// Environment render side in pixels.
     #[arg(long, default_value_t = 128)]

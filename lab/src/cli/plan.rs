@@ -70,7 +70,7 @@ pub struct TradeoffArgs {
     #[arg(long)]
     pub size: Option<usize>,
     /// Environment-lit scene (its environment map is read relative to it).
-    #[arg(long, default_value = "examples/sphere-sky.toml")]
+    #[arg(long, default_value = DEFAULT_ENV_SCENE)]
     pub env_scene: PathBuf,
     /// Environment render side in pixels.
     #[arg(long, default_value_t = 256)]
@@ -170,9 +170,10 @@ pub fn run_tradeoff(args: TradeoffArgs) -> Result<()> {
     })
 }
 
-/// `closed-loop`'s finest grid and environment scene unless given (its regenerate line names others).
+/// `closed-loop`'s finest grid unless given (its regenerate line names others).
 const DEFAULT_MAX_GRID: usize = 16;
-const DEFAULT_ENV_SCENE: &str = "examples/sphere-sky.toml";
+/// The environment-lit scene the lab's commands score in unless given.
+pub const DEFAULT_ENV_SCENE: &str = "examples/sphere-sky.toml";
 
 #[derive(clap::Args)]
 pub struct ClosedLoopArgs {
