@@ -4,7 +4,9 @@
 //! closed loop's `adaptive`) at each level, its mean FLIP split over the sphere's pixels by the
 //! view elevation theta_o (the rim is grazing) and by the elevation of the mirror-reflected
 //! direction above the world horizon (which part of the sky a pixel mirrors: ground, horizon, sky).
-//! Each cell is its pixels' share of the mean FLIP (the cells of one split sum to it).
+//! Each cell is its pixels' share of the mean FLIP (the cells of one split sum to it); `background`
+//! is the pixels whose centre misses the sphere (edge pixels the sub-pixel grid partly covers, and
+//! error FLIP's spatial filter spreads past the silhouette).
 //!
 //!     cargo run --release -p gonio-lab --example env_flip_bands -- SPEC [SPEC...]
 //!
