@@ -8,8 +8,14 @@ the worst cell (docs/trials/).
 """
 import csv
 import math
+import os
 import sys
 from collections import defaultdict
+
+def short(material):
+    """A material's name without its scheme, folder and extension (rgl:../x/satin.bsdf -> satin)."""
+    return os.path.splitext(os.path.basename(material.split(":", 1)[-1]))[0]
+
 
 METRICS = [("point", "true_flip"), ("env", "env_flip"), ("brdf", "brdf_log_err")]
 
@@ -44,7 +50,7 @@ def main(argv):
             if mean > worst[0]:
                 worst = (mean, f"{name} L{level}")
             cells.append(
-                f"{math.exp(mean):.3f} ({sum(x > 0 for x, _ in logs)} worse; {logs[-1][1].split(':')[-1]} "
+                f"{math.exp(mean):.3f} ({sum(x > 0 for x, _ in logs)} worse; {short(logs[-1][1])} "
                 f"{math.exp(logs[-1][0]):.2f}; without it {math.exp(sum(x for x, _ in rest) / len(rest)):.3f})"
             )
         print(f"{name:6s}", " / ".join(cells))
