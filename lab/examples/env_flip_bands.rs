@@ -79,7 +79,7 @@ fn main() -> anyhow::Result<()> {
                     };
                     let cos_o = (-ray.dir).dot(hit.normal).clamp(-1.0, 1.0);
                     view[band(&VIEW_EDGES, cos_o.acos().to_degrees())] += e;
-                    let reflected = ray.dir - 2.0 * ray.dir.dot(hit.normal) * hit.normal;
+                    let reflected = gonio::brdf::frame::reflect(-ray.dir, hit.normal);
                     sky[band(&SKY_EDGES, reflected.y.clamp(-1.0, 1.0).asin().to_degrees())] += e;
                 }
             }
