@@ -10,6 +10,7 @@
 
 use super::{
     capture_photo, choose, designed, photo_estimate, reseed, HELDOUT_MATERIALS, REAL_MATERIALS, TRAINING_MATERIALS,
+    TRAINING_POOL_MATERIALS,
 };
 use crate::plan::report::{csv, write};
 use gonio::brdf::parse_material;
@@ -38,13 +39,21 @@ pub enum LoopPreset {
     Heldout,
     /// The three real measurements.
     Real,
+    /// 26 further MERL materials the encoder trained on, mostly sharp (`TRAINING_POOL_MATERIALS`): a
+    /// second set to choose on, where one material moves a geometric mean less than among 14.
+    TrainingPool,
 }
 
 impl LoopPreset {
-    /// The preset called `name` (training, heldout or real), for the lab's examples.
+    /// The preset called `name` (training, heldout, real or training-pool), for the lab's examples.
     pub fn named(name: &str) -> Result<Self, String> {
         <Self as clap::ValueEnum>::from_str(name, true)
-            .map_err(|_| format!("unknown preset {name:?} (training, heldout or real)"))
+            .map_err(|_| format!("unknown preset {name:?} (training, heldout, real or training-pool)"))
+    }
+
+    /// Its name on the command line.
+    pub fn name(self) -> String {
+        clap::ValueEnum::to_possible_value(&self).map_or_else(String::new, |v| v.get_name().to_string())
     }
 
     pub fn materials(self) -> Vec<String> {
@@ -52,6 +61,7 @@ impl LoopPreset {
             LoopPreset::Training => &TRAINING_MATERIALS,
             LoopPreset::Heldout => &HELDOUT_MATERIALS,
             LoopPreset::Real => &REAL_MATERIALS,
+            LoopPreset::TrainingPool => &TRAINING_POOL_MATERIALS,
         };
         list.iter().map(|s| s.to_string()).collect()
     }
@@ -602,7 +612,7 @@ pub fn run(
     };
     std::fs::create_dir_all(dir).map_err(|e| PlanError::Invalid(format!("{}: {e}", dir.display())))?;
     write(dir, "closed-loop.csv", &csv(&rows)?)?;
-    let name = format!("{preset:?}").to_lowercase();
+    let name = preset.name();
     let md = summary(
         &rows,
         &name,
@@ -692,6 +702,8 @@ mod tests {
     fn presets_are_named_as_on_the_command_line() {
         assert_eq!(LoopPreset::named("heldout"), Ok(LoopPreset::Heldout));
         assert_eq!(LoopPreset::named("real"), Ok(LoopPreset::Real));
+        assert_eq!(LoopPreset::named("training-pool"), Ok(LoopPreset::TrainingPool));
+        assert_eq!(LoopPreset::TrainingPool.name(), "training-pool");
         let err = LoopPreset::named("merl").unwrap_err();
         assert!(err.contains("\"merl\"") && !err.contains('\n'), "{err}");
     }
