@@ -2,15 +2,23 @@
 """A closed-loop trial against the product: per metric (point FLIP, env FLIP, brdf_log_err) and level,
 the geometric mean over materials of the ratio trial / product for one strategy, then the number of
 materials worse, the worst material and the mean without it; last, the summed log of the means and
-the worst cell (docs/trials/).
+the worst cell (docs/trials/). With --bootstrap, each cell's and the summed log's 90 % interval from
+resampling the materials (the same resample for every cell, so the sum keeps their correlation): how
+far a verdict on one set of materials can be told from chance.
 
-    python3 tools/closed_loop_ratios.py TRIAL/closed-loop.csv PRODUCT/closed-loop.csv [strategy]
+    python3 tools/closed_loop_ratios.py TRIAL/closed-loop.csv PRODUCT/closed-loop.csv [strategy] [--bootstrap]
 """
+import argparse
 import csv
 import math
 import os
+import random
+import statistics
 import sys
 from collections import defaultdict
+
+RESAMPLES = 2000
+SEED = 1
 
 def short(material):
     """A material's name without its scheme, folder and extension (rgl:../x/satin.bsdf -> satin)."""
@@ -31,11 +39,41 @@ def load(path, strategy):
     return rows
 
 
+def bootstrap(new, old):
+    """Per metric, per level: the 90 % interval of the ratio's geometric mean; and of the summed log."""
+    cells = [(name, col, level) for name, col in METRICS for level in sorted(new)]
+    mats = sorted(set.intersection(*(set(new[l]) & set(old.get(l, {})) for _, _, l in cells)))
+    if not mats:
+        raise ValueError("no material in every cell of both files")
+    logs = [[math.log(float(new[l][m][col]) / float(old[l][m][col])) for m in mats] for _, col, l in cells]
+    rng = random.Random(SEED)
+    means = [[] for _ in cells]
+    sums = []
+    for _ in range(RESAMPLES):
+        pick = [rng.randrange(len(mats)) for _ in mats]
+        total = 0.0
+        for c, cell in enumerate(logs):
+            mean = sum(cell[i] for i in pick) / len(pick)
+            means[c].append(mean)
+            total += mean
+        sums.append(total)
+
+    def interval(values):
+        cuts = statistics.quantiles(values, n=20, method="inclusive")
+        return cuts[0], cuts[-1]
+
+    intervals = {(name, level): tuple(map(math.exp, interval(m))) for (name, _, level), m in zip(cells, means)}
+    return len(mats), intervals, interval(sums)
+
+
 def main(argv):
-    if len(argv) not in (3, 4):
-        raise ValueError("usage: closed_loop_ratios.py TRIAL.csv PRODUCT.csv [strategy]")
-    strategy = argv[3] if len(argv) == 4 else "adaptive"
-    new, old = load(argv[1], strategy), load(argv[2], strategy)
+    parser = argparse.ArgumentParser(prog="closed_loop_ratios.py")
+    parser.add_argument("trial")
+    parser.add_argument("product")
+    parser.add_argument("strategy", nargs="?", default="adaptive")
+    parser.add_argument("--bootstrap", action="store_true", help="90 %% intervals over resampled materials")
+    args = parser.parse_args(argv[1:])
+    new, old = load(args.trial, args.strategy), load(args.product, args.strategy)
     total, worst = 0.0, (-math.inf, "")
     for name, col in METRICS:
         cells = []
@@ -55,6 +93,13 @@ def main(argv):
             )
         print(f"{name:6s}", " / ".join(cells))
     print(f"summed log {total:+.3f}; worst cell {worst[1]} {100 * (math.exp(worst[0]) - 1):+.1f} %")
+    if args.bootstrap:
+        n, intervals, (lo, hi) = bootstrap(new, old)
+        print(f"90 % intervals, {n} materials resampled {RESAMPLES} times (seed {SEED}):")
+        for name, _ in METRICS:
+            print(f"{name:6s}", " / ".join(
+                f"[{intervals[(name, level)][0]:.3f}, {intervals[(name, level)][1]:.3f}]" for level in sorted(new)))
+        print(f"summed log [{lo:+.3f}, {hi:+.3f}]")
 
 
 if __name__ == "__main__":

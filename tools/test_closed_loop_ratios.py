@@ -2,6 +2,7 @@
 import contextlib
 import csv
 import io
+import math
 import os
 import subprocess
 import sys
@@ -49,6 +50,30 @@ class ClosedLoopRatios(unittest.TestCase):
         self.assertTrue(env.startswith("env    1.000 (0 worse;"), env)
         self.assertTrue(brdf.startswith("brdf   2.000 (1 worse; a 4.00; without it 1.000)"), brdf)
         self.assertEqual(summary, "summed log +0.693; worst cell brdf L1 +100.0 %")
+
+    def test_bootstrap_intervals_hold_the_mean_and_collapse_when_materials_agree(self):
+        rows_product, rows_trial = [], []
+        for i, ratio in enumerate([0.5, 0.8, 1.0, 1.25, 2.0, 0.9]):
+            for level in (1, 2):
+                rows_product.append([f"m{i}", "adaptive", level, 0.01, 0.02, 0.001])
+                # point varies by material; env is the same ratio (0.9) everywhere; brdf unchanged.
+                rows_trial.append([f"m{i}", "adaptive", level, 0.01 * ratio, 0.018, 0.001])
+        product = write_csv(self.dir.name, "product.csv", rows_product)
+        trial = write_csv(self.dir.name, "trial.csv", rows_trial)
+        lines = self.run_main(trial, product, "--bootstrap")
+        self.assertEqual(lines[4], "90 % intervals, 6 materials resampled 2000 times (seed 1):")
+        point, env, brdf, summed = lines[5:]
+        lo, hi = (float(x) for x in point.split("[")[1].split("]")[0].split(", "))
+        mean = math.exp(sum(math.log(r) for r in [0.5, 0.8, 1.0, 1.25, 2.0, 0.9]) / 6)
+        self.assertLess(lo, mean)
+        self.assertGreater(hi, mean)
+        self.assertLess(lo, 0.85)
+        self.assertGreater(hi, 1.15)
+        self.assertEqual(env, "env    [0.900, 0.900] / [0.900, 0.900]")
+        self.assertEqual(brdf, "brdf   [1.000, 1.000] / [1.000, 1.000]")
+        self.assertTrue(summed.startswith("summed log ["), summed)
+        # The same seed gives the same intervals.
+        self.assertEqual(lines, self.run_main(trial, product, "--bootstrap"))
 
     def test_short_names_drop_scheme_folder_and_extension(self):
         self.assertEqual(closed_loop_ratios.short("rgl:../shared/data/rgl/satin_rosaline_rgb.bsdf"), "satin_rosaline_rgb")
