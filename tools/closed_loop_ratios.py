@@ -6,7 +6,7 @@ the worst cell (docs/trials/). With --bootstrap, each cell's and the summed log'
 resampling the materials (the same resample for every cell, so the sum keeps their correlation): how
 far a verdict on one set of materials can be told from chance.
 
-    python3 tools/closed_loop_ratios.py TRIAL/closed-loop.csv PRODUCT/closed-loop.csv [strategy] [--bootstrap]
+    python3 tools/closed_loop_ratios.py TRIAL/closed-loop.csv PRODUCT/closed-loop.csv [strategy] [--bootstrap] [--metrics point,env,brdf]
 """
 import argparse
 import csv
@@ -39,9 +39,9 @@ def load(path, strategy):
     return rows
 
 
-def bootstrap(new, old):
+def bootstrap(new, old, metrics=METRICS):
     """Per metric, per level: the 90 % interval of the ratio's geometric mean; and of the summed log."""
-    cells = [(name, col, level) for name, col in METRICS for level in sorted(new)]
+    cells = [(name, col, level) for name, col in metrics for level in sorted(new)]
     mats = sorted(set.intersection(*(set(new[l]) & set(old.get(l, {})) for _, _, l in cells)))
     if not mats:
         raise ValueError("no material in every cell of both files")
@@ -72,10 +72,16 @@ def main(argv):
     parser.add_argument("product")
     parser.add_argument("strategy", nargs="?", default="adaptive")
     parser.add_argument("--bootstrap", action="store_true", help="90 %% intervals over resampled materials")
+    parser.add_argument("--metrics", default="point,env,brdf", help="comma-separated subset of point,env,brdf")
     args = parser.parse_args(argv[1:])
+    names = args.metrics.split(",")
+    unknown = sorted(set(names) - {name for name, _ in METRICS})
+    if unknown or not names:
+        raise ValueError(f"unknown metric {', '.join(unknown)} (point, env or brdf)")
+    metrics = [(name, col) for name, col in METRICS if name in names]
     new, old = load(args.trial, args.strategy), load(args.product, args.strategy)
     total, worst = 0.0, (-math.inf, "")
-    for name, col in METRICS:
+    for name, col in metrics:
         cells = []
         for level in sorted(new):
             mats = sorted(set(new[level]) & set(old.get(level, {})))
@@ -94,9 +100,9 @@ def main(argv):
         print(f"{name:6s}", " / ".join(cells))
     print(f"summed log {total:+.3f}; worst cell {worst[1]} {100 * (math.exp(worst[0]) - 1):+.1f} %")
     if args.bootstrap:
-        n, intervals, (lo, hi) = bootstrap(new, old)
+        n, intervals, (lo, hi) = bootstrap(new, old, metrics)
         print(f"90 % intervals, {n} materials resampled {RESAMPLES} times (seed {SEED}):")
-        for name, _ in METRICS:
+        for name, _ in metrics:
             print(f"{name:6s}", " / ".join(
                 f"[{intervals[(name, level)][0]:.3f}, {intervals[(name, level)][1]:.3f}]" for level in sorted(new)))
         print(f"summed log [{lo:+.3f}, {hi:+.3f}]")

@@ -74,6 +74,13 @@ class ClosedLoopRatios(unittest.TestCase):
         self.assertTrue(summed.startswith("summed log ["), summed)
         # The same seed gives the same intervals.
         self.assertEqual(lines, self.run_main(trial, product, "--bootstrap"))
+        # A subset of the metrics: only its rows, and the summed log over them alone.
+        env_only = self.run_main(trial, product, "--bootstrap", "--metrics", "env")
+        self.assertEqual(env_only[1], "summed log -0.211; worst cell env L1 -10.0 %")
+        self.assertEqual(env_only[3], "env    [0.900, 0.900] / [0.900, 0.900]")
+        self.assertEqual(env_only[4], "summed log [-0.211, -0.211]")
+        with self.assertRaisesRegex(ValueError, "unknown metric flip"):
+            self.run_main(trial, product, "--metrics", "env,flip")
 
     def test_short_names_drop_scheme_folder_and_extension(self):
         self.assertEqual(closed_loop_ratios.short("rgl:../shared/data/rgl/satin_rosaline_rgb.bsdf"), "satin_rosaline_rgb")
