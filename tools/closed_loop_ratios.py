@@ -7,6 +7,7 @@ resampling the materials (the same resample for every cell, so the sum keeps the
 far a verdict on one set of materials can be told from chance.
 
     python3 tools/closed_loop_ratios.py TRIAL/closed-loop.csv PRODUCT/closed-loop.csv [strategy] [--bootstrap] [--metrics point,env,brdf]
+    python3 tools/closed_loop_ratios.py CSV CSV adaptive --versus uniform --bootstrap
 """
 import argparse
 import csv
@@ -73,13 +74,15 @@ def main(argv):
     parser.add_argument("strategy", nargs="?", default="adaptive")
     parser.add_argument("--bootstrap", action="store_true", help="90 %% intervals over resampled materials")
     parser.add_argument("--metrics", default="point,env,brdf", help="comma-separated subset of point,env,brdf")
+    parser.add_argument("--versus", metavar="STRATEGY", help="the product file's strategy, if not the trial's "
+                        "(e.g. adaptive against uniform in one csv: issue 25's equal-directions ratios)")
     args = parser.parse_args(argv[1:])
     names = args.metrics.split(",")
     unknown = sorted(set(names) - {name for name, _ in METRICS})
     if unknown or not names:
         raise ValueError(f"unknown metric {', '.join(unknown)} (point, env or brdf)")
     metrics = [(name, col) for name, col in METRICS if name in names]
-    new, old = load(args.trial, args.strategy), load(args.product, args.strategy)
+    new, old = load(args.trial, args.strategy), load(args.product, args.versus or args.strategy)
     total, worst = 0.0, (-math.inf, "")
     for name, col in metrics:
         cells = []

@@ -82,6 +82,16 @@ class ClosedLoopRatios(unittest.TestCase):
         with self.assertRaisesRegex(ValueError, "unknown metric flip"):
             self.run_main(trial, product, "--metrics", "env,flip")
 
+    def test_versus_compares_two_strategies_of_one_file(self):
+        both = write_csv(self.dir.name, "both.csv", [
+            ["a", "adaptive", 1, 0.02, 0.01, 0.001],
+            ["a", "uniform", 1, 0.01, 0.02, 0.001],
+        ])
+        point, env, brdf, summary = self.run_main(both, both, "adaptive", "--versus", "uniform")
+        self.assertTrue(point.startswith("point  2.000 (1 worse;"), point)
+        self.assertTrue(env.startswith("env    0.500 (0 worse;"), env)
+        self.assertEqual(summary, "summed log +0.000; worst cell point L1 +100.0 %")
+
     def test_short_names_drop_scheme_folder_and_extension(self):
         self.assertEqual(closed_loop_ratios.short("rgl:../shared/data/rgl/satin_rosaline_rgb.bsdf"), "satin_rosaline_rgb")
         self.assertEqual(closed_loop_ratios.short("nbrdf:two-layer-silver"), "two-layer-silver")
