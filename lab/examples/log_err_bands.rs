@@ -3,9 +3,10 @@
 //! plan (from the photo estimate, as `gonio-lab closed-loop`'s `adaptive`), with the fitted prior
 //! alone beside it. With `--peak`, the luminance of the truth, the reconstruction and the prior at
 //! each pair of the first two bands (the mirror pairs: 13 of the 21 below 1 deg are the one pair
-//! wi = wo = n, repeated over phi_i).
+//! wi = wo = n, repeated over phi_i). With `--uniform`, the uniform grid's plan instead of `auto`
+//! (the closed loop's `uniform` rows).
 //!
-//!     cargo run --release -p gonio-lab --example log_err_bands [--peak] [MATERIAL ...]
+//!     cargo run --release -p gonio-lab --example log_err_bands [--peak] [--uniform] [MATERIAL ...]
 //!
 //! Used in docs/tradeoff/README.md ("The normal-incidence peak") to find the closed loop's level-4
 //! brdf_log_err jumps on sharp materials at wi = wo = n.
@@ -28,8 +29,13 @@ fn main() -> anyhow::Result<()> {
     let (flags, mut materials): (Vec<String>, Vec<String>) =
         std::env::args().skip(1).partition(|a| a.starts_with("--"));
     let peak = flags.iter().any(|f| f == "--peak");
-    if let Some(bad) = flags.iter().find(|f| *f != "--peak") {
-        anyhow::bail!("unknown flag {bad} (only --peak)");
+    let strategy = if flags.iter().any(|f| f == "--uniform") {
+        Strategy::Uniform
+    } else {
+        Strategy::Auto
+    };
+    if let Some(bad) = flags.iter().find(|f| *f != "--peak" && *f != "--uniform") {
+        anyhow::bail!("unknown flag {bad} (--peak, --uniform)");
     }
     if materials.is_empty() {
         materials = vec!["nbrdf:tungsten-carbide".into()];
@@ -51,7 +57,7 @@ fn main() -> anyhow::Result<()> {
         let truth = parse_material(spec)?;
         let (estimate, _) = photo_estimate(&capture_photo(spec)?.1, &encoder)?;
         let config = PlanConfig {
-            strategy: Strategy::Auto,
+            strategy,
             ..PlanConfig::default()
         };
         let plan = Planner::new(instrument, estimate.clone())?.plan(&config)?;
