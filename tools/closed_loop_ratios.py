@@ -6,7 +6,7 @@ the worst cell (docs/trials/). With --bootstrap, each cell's and the summed log'
 resampling the materials (the same resample for every cell, so the sum keeps their correlation): how
 far a verdict on one set of materials can be told from chance.
 
-    python3 tools/closed_loop_ratios.py TRIAL/closed-loop.csv PRODUCT/closed-loop.csv [strategy] [--bootstrap] [--metrics point,env,brdf]
+    python3 tools/closed_loop_ratios.py TRIAL/closed-loop.csv PRODUCT/closed-loop.csv [strategy] [--bootstrap] [--metrics point,env,brdf,liu]
     python3 tools/closed_loop_ratios.py CSV CSV adaptive --versus uniform --bootstrap
 """
 import argparse
@@ -26,7 +26,8 @@ def short(material):
     return os.path.splitext(os.path.basename(material.split(":", 1)[-1]))[0]
 
 
-METRICS = [("point", "true_flip"), ("env", "env_flip"), ("brdf", "brdf_log_err")]
+METRICS = [("point", "true_flip"), ("env", "env_flip"), ("brdf", "brdf_log_err"), ("liu", "liu_log_err")]
+DEFAULT_METRICS = "point,env,brdf"
 
 
 def load(path, strategy):
@@ -73,15 +74,22 @@ def main(argv):
     parser.add_argument("product")
     parser.add_argument("strategy", nargs="?", default="adaptive")
     parser.add_argument("--bootstrap", action="store_true", help="90 %% intervals over resampled materials")
-    parser.add_argument("--metrics", default="point,env,brdf", help="comma-separated subset of point,env,brdf")
+    parser.add_argument("--metrics", default=DEFAULT_METRICS,
+                        help="comma-separated subset of point,env,brdf,liu (liu: csvs from 2026-12-08 on)")
     parser.add_argument("--versus", metavar="STRATEGY", help="the product file's strategy, if not the trial's "
                         "(e.g. adaptive against uniform in one csv: issue 25's equal-directions ratios)")
     args = parser.parse_args(argv[1:])
     names = args.metrics.split(",")
     unknown = sorted(set(names) - {name for name, _ in METRICS})
     if unknown or not names:
-        raise ValueError(f"unknown metric {', '.join(unknown)} (point, env or brdf)")
+        raise ValueError(f"unknown metric {', '.join(unknown)} (point, env, brdf or liu)")
     metrics = [(name, col) for name, col in METRICS if name in names]
+    for path in (args.trial, args.product):
+        with open(path, newline="") as f:
+            header = next(csv.reader(f), [])
+        missing = [col for _, col in metrics if col not in header]
+        if missing:
+            raise ValueError(f"{path}: no column {', '.join(missing)} (a csv made before it was recorded)")
     new, old = load(args.trial, args.strategy), load(args.product, args.versus or args.strategy)
     total, worst = 0.0, (-math.inf, "")
     for name, col in metrics:

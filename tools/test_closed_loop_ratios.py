@@ -81,6 +81,9 @@ class ClosedLoopRatios(unittest.TestCase):
         self.assertEqual(env_only[4], "summed log [-0.211, -0.211]")
         with self.assertRaisesRegex(ValueError, "unknown metric flip"):
             self.run_main(trial, product, "--metrics", "env,flip")
+        # These csvs predate liu_log_err: asking for it names the missing column.
+        with self.assertRaisesRegex(ValueError, "no column liu_log_err"):
+            self.run_main(trial, product, "--metrics", "liu")
 
     def test_versus_compares_two_strategies_of_one_file(self):
         both = write_csv(self.dir.name, "both.csv", [
@@ -91,6 +94,18 @@ class ClosedLoopRatios(unittest.TestCase):
         self.assertTrue(point.startswith("point  2.000 (1 worse;"), point)
         self.assertTrue(env.startswith("env    0.500 (0 worse;"), env)
         self.assertEqual(summary, "summed log +0.000; worst cell point L1 +100.0 %")
+
+    def test_liu_reads_its_own_column(self):
+        def liu_csv(name, liu):
+            path = os.path.join(self.dir.name, name)
+            with open(path, "w", newline="") as f:
+                w = csv.writer(f)
+                w.writerow(COLUMNS + ["liu_log_err"])
+                w.writerow(["a", "adaptive", 1, 0.01, 0.02, 0.001, liu])
+            return path
+        lines = self.run_main(liu_csv("t.csv", 0.004), liu_csv("p.csv", 0.002), "--metrics", "liu")
+        self.assertEqual(lines, ["liu    2.000 (1 worse; a 2.00; without it 2.000)",
+                                 "summed log +0.693; worst cell liu L1 +100.0 %"])
 
     def test_short_names_drop_scheme_folder_and_extension(self):
         self.assertEqual(closed_loop_ratios.short("rgl:../shared/data/rgl/satin_rosaline_rgb.bsdf"), "satin_rosaline_rgb")

@@ -19,7 +19,7 @@ use gonio::brdf::Material;
 use gonio::encoder::infer::Encoder;
 use gonio::encoder::ModelKind;
 use gonio::plan::closed_loop::{self, Assessor, LevelAssessment};
-use gonio::plan::predict::{score, Scorer};
+use gonio::plan::predict::{log_err_over, score, Scorer};
 use gonio::plan::{square_grids, Estimate, LevelSummary, Plan, PlanConfig, PlanError, Planner, Strategy};
 use gonio::reconstruct::Levels;
 use gonio::render::Image;
@@ -107,6 +107,10 @@ pub struct LoopRow {
     /// split change's (sets `RMSE_RATIO` and `FIRST_RMSE_RATIO`; absent in older csvs).
     #[serde(default)]
     pub change_psnr: Option<f64>,
+    /// `liu_log_err` (`liu`: 25,000 random pairs at every elevation), beside `brdf_log_err`, whose
+    /// fixed set stops at theta_i 80 deg and weighs the mirror pairs (absent in older csvs).
+    #[serde(default)]
+    pub liu_log_err: Option<f64>,
 }
 
 /// Side (px) of the environment render the report scores (the point render's `ESTIMATE_SIZE`).
@@ -235,8 +239,14 @@ fn mixture_label(w: MixtureWeights) -> String {
 /// committed rows were made so; docs/tradeoff/README.md says what that changes).
 const UNPADDED: usize = 0;
 
-/// A level's assessment with the report's own scores of its reconstruction (log_err, env FLIP).
-type Scored = (LevelAssessment, f64, f64);
+/// A level's assessment with the report's own scores of its reconstruction.
+#[derive(Clone, Debug)]
+struct Scored {
+    assessment: LevelAssessment,
+    brdf_log_err: f64,
+    liu_log_err: f64,
+    env_flip: f64,
+}
 
 /// A trial's rows of one material: label, levels, and the choice that made them (`choose`).
 type Run = (String, Vec<Scored>, Option<choose::Choice>);
@@ -244,7 +254,8 @@ type Run = (String, Vec<Scored>, Option<choose::Choice>);
 fn rows_of(material: &str, strategy: &str, levels: &[Scored], uniform: &[usize]) -> Vec<LoopRow> {
     levels
         .iter()
-        .map(|(a, log_err, env_flip)| LoopRow {
+        .map(|s| (&s.assessment, s))
+        .map(|(a, s)| LoopRow {
             material: material.to_string(),
             strategy: strategy.to_string(),
             level: a.level,
@@ -259,13 +270,14 @@ fn rows_of(material: &str, strategy: &str, levels: &[Scored], uniform: &[usize])
             true_psnr: a.true_psnr,
             half_width: a.half_width,
             coverage: a.coverage,
-            brdf_log_err: Some(*log_err),
-            env_flip: Some(*env_flip),
+            brdf_log_err: Some(s.brdf_log_err),
+            env_flip: Some(s.env_flip),
             schedule: None,
             e_in: None,
             e_out: None,
             prior: Some(a.prior.to_string()),
             change_psnr: a.change_psnr,
+            liu_log_err: Some(s.liu_log_err),
         })
         .collect()
 }
@@ -335,13 +347,13 @@ pub fn run_rows(
                 photo_plan = Some((plan, config));
             }
         }
-        let uniform: Vec<usize> = per[1].iter().map(|a| a.0.directions).collect();
+        let uniform: Vec<usize> = per[1].iter().map(|s| s.assessment.directions).collect();
         rows.extend(rows_of(spec, "adaptive", &per[0], &uniform));
         rows.extend(rows_of(spec, "uniform", &per[1], &uniform));
         let line = |levels: &[Scored]| {
             levels
                 .iter()
-                .map(|(a, _, env)| format!("{:.4}/{env:.4}", a.true_flip.unwrap_or(f64::NAN)))
+                .map(|s| format!("{:.4}/{:.4}", s.assessment.true_flip.unwrap_or(f64::NAN), s.env_flip))
                 .collect::<Vec<_>>()
                 .join(" ")
         };
@@ -557,14 +569,21 @@ fn assess_levels(
 ) -> Result<Vec<Scored>, PlanError> {
     let truth = parse_material(spec)?;
     let mut assessor = Assessor::new(Some(spec))?;
+    let liu = super::liu::liu_pairs();
     let mut out = Vec::new();
     for summary in summaries {
-        let (a, rec) = assessor.assess(levels, summary, &values[..summary.cumulative_directions])?;
-        let log_err = scorer.log_err(truth.as_ref(), &rec);
+        let (assessment, rec) = assessor.assess(levels, summary, &values[..summary.cumulative_directions])?;
+        let brdf_log_err = scorer.log_err(truth.as_ref(), &rec);
+        let liu_log_err = log_err_over(&liu, truth.as_ref(), &rec);
         let env = scorer
             .render_env(Box::new(rec), spec)
             .ok_or_else(|| PlanError::Invalid("no environment scene".into()))?;
-        out.push((a, log_err, score(truth_env, &env)?.flip));
+        out.push(Scored {
+            assessment,
+            brdf_log_err,
+            liu_log_err,
+            env_flip: score(truth_env, &env)?.flip,
+        });
     }
     Ok(out)
 }
@@ -650,6 +669,7 @@ mod tests {
             e_out: None,
             prior: Some(if level == 1 { "two-lobes" } else { "pca" }.into()),
             change_psnr: None,
+            liu_log_err: Some(3.0 * error),
         }
     }
 
@@ -851,7 +871,7 @@ mod tests {
         let md = summary(&rows, "test", "cmd");
         // Level 1: ratios 2 and 0.5, geomean 1, worst 2 (the same on every metric).
         assert!(
-            md.contains("| 1 | 1.000 | 2.000 | 1.000 | 2.000 | 1.000 | 2.000 | true |"),
+            md.contains("| 1 | 1.000 | 2.000 | 1.000 | 2.000 | 1.000 | 2.000 | 1.000 | 2.000 | true |"),
             "{md}"
         );
         // The test rows pick the basis at level 2 only.
@@ -861,12 +881,12 @@ mod tests {
         );
         // Absolute: adaptive level 1 errors 0.02 and 0.01 (geomean 0.01414), directions 10 each.
         assert!(
-            md.contains("| adaptive | 1 | 10 | 0.01414 | 0.05657 | 0.02828 |"),
+            md.contains("| adaptive | 1 | 10 | 0.01414 | 0.05657 | 0.02828 | 0.04243 |"),
             "{md}"
         );
         // Level 2: 3 and 0.5.
         assert!(
-            md.contains("| 2 | 1.225 | 3.000 | 1.225 | 3.000 | 1.225 | 3.000 | true |"),
+            md.contains("| 2 | 1.225 | 3.000 | 1.225 | 3.000 | 1.225 | 3.000 | 1.225 | 3.000 | true |"),
             "{md}"
         );
         assert!(
@@ -881,5 +901,45 @@ mod tests {
             md.contains("| a | adaptive | 1 | 10 | 6.0 | 0.0200 | 0.0800 | 0.0400 |"),
             "{md}"
         );
+        assert!(
+            md.contains("| adaptive | liu_log_err | 1.500 | a level 2 | 1 of 2 |"),
+            "{md}"
+        );
+    }
+
+    /// Rows from a csv made before `liu_log_err` was recorded: its cells read `-` and it has no
+    /// monotonicity row; the other metrics are as before.
+    #[test]
+    fn rows_without_liu_log_err_leave_its_cells_empty() {
+        let rows: Vec<LoopRow> = [("adaptive", 0.02), ("uniform", 0.01)]
+            .iter()
+            .flat_map(|&(strategy, e)| {
+                (1..=2).map(move |level| LoopRow {
+                    liu_log_err: None,
+                    ..row("a", strategy, level, e)
+                })
+            })
+            .collect();
+        let md = summary(&rows, "test", "cmd");
+        assert!(
+            md.contains("| 1 | 2.000 | 2.000 | 2.000 | 2.000 | 2.000 | 2.000 | - | - | true |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| adaptive | 1 | 10 | 0.02000 | 0.08000 | 0.04000 | - |"),
+            "{md}"
+        );
+        assert!(!md.contains("| adaptive | liu_log_err |"), "{md}");
+        // An older csv (no liu_log_err column) reads back with the field empty.
+        let dir = std::env::temp_dir().join(format!("gonio-liu-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("old.csv");
+        let header = "material,strategy,level,directions,uniform_directions,minutes,true_flip\n";
+        std::fs::write(&path, format!("{header}a,adaptive,1,10,10,0.5,0.02\n")).unwrap();
+        let read = read_rows(&path).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert_eq!(read.len(), 1);
+        assert_eq!(read[0].liu_log_err, None);
+        assert_eq!(read[0].true_flip, Some(0.02));
     }
 }
