@@ -21,6 +21,7 @@ from collections import defaultdict
 RESAMPLES = 2000
 SEED = 1
 
+
 def short(material):
     """A material's name without its scheme, folder and extension (rgl:../x/satin.bsdf -> satin)."""
     return os.path.splitext(os.path.basename(material.split(":", 1)[-1]))[0]
@@ -81,7 +82,7 @@ def main(argv):
     args = parser.parse_args(argv[1:])
     names = args.metrics.split(",")
     unknown = sorted(set(names) - {name for name, _ in METRICS})
-    if unknown or not names:
+    if unknown:
         raise ValueError(f"unknown metric {', '.join(unknown)} (point, env, brdf or liu)")
     metrics = [(name, col) for name, col in METRICS if name in names]
     for path in (args.trial, args.product):

@@ -254,30 +254,32 @@ type Run = (String, Vec<Scored>, Option<choose::Choice>);
 fn rows_of(material: &str, strategy: &str, levels: &[Scored], uniform: &[usize]) -> Vec<LoopRow> {
     levels
         .iter()
-        .map(|s| (&s.assessment, s))
-        .map(|(a, s)| LoopRow {
-            material: material.to_string(),
-            strategy: strategy.to_string(),
-            level: a.level,
-            directions: a.directions,
-            uniform_directions: uniform.get(a.level - 1).copied().unwrap_or(0),
-            minutes: a.cumulative_seconds / 60.0,
-            change_flip: a.change_flip,
-            est_flip: a.est_flip.map(|e| e.0),
-            est_lo: a.est_flip.map(|e| e.1),
-            est_hi: a.est_flip.map(|e| e.2),
-            true_flip: a.true_flip,
-            true_psnr: a.true_psnr,
-            half_width: a.half_width,
-            coverage: a.coverage,
-            brdf_log_err: Some(s.brdf_log_err),
-            env_flip: Some(s.env_flip),
-            schedule: None,
-            e_in: None,
-            e_out: None,
-            prior: Some(a.prior.to_string()),
-            change_psnr: a.change_psnr,
-            liu_log_err: Some(s.liu_log_err),
+        .map(|s| {
+            let a = &s.assessment;
+            LoopRow {
+                material: material.to_string(),
+                strategy: strategy.to_string(),
+                level: a.level,
+                directions: a.directions,
+                uniform_directions: uniform.get(a.level - 1).copied().unwrap_or(0),
+                minutes: a.cumulative_seconds / 60.0,
+                change_flip: a.change_flip,
+                est_flip: a.est_flip.map(|e| e.0),
+                est_lo: a.est_flip.map(|e| e.1),
+                est_hi: a.est_flip.map(|e| e.2),
+                true_flip: a.true_flip,
+                true_psnr: a.true_psnr,
+                half_width: a.half_width,
+                coverage: a.coverage,
+                brdf_log_err: Some(s.brdf_log_err),
+                env_flip: Some(s.env_flip),
+                schedule: None,
+                e_in: None,
+                e_out: None,
+                prior: Some(a.prior.to_string()),
+                change_psnr: a.change_psnr,
+                liu_log_err: Some(s.liu_log_err),
+            }
         })
         .collect()
 }
@@ -931,13 +933,11 @@ mod tests {
         );
         assert!(!md.contains("| adaptive | liu_log_err |"), "{md}");
         // An older csv (no liu_log_err column) reads back with the field empty.
-        let dir = std::env::temp_dir().join(format!("gonio-liu-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("old.csv");
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("old.csv");
         let header = "material,strategy,level,directions,uniform_directions,minutes,true_flip\n";
         std::fs::write(&path, format!("{header}a,adaptive,1,10,10,0.5,0.02\n")).unwrap();
         let read = read_rows(&path).unwrap();
-        std::fs::remove_dir_all(&dir).unwrap();
         assert_eq!(read.len(), 1);
         assert_eq!(read[0].liu_log_err, None);
         assert_eq!(read[0].true_flip, Some(0.02));
